@@ -1,0 +1,121 @@
+"""Nominal cascaded quadrotor controller: position -> thrust vector -> attitude -> body rates -> rotor speeds.
+
+Fault-unaware: it knows the nominal parameter set (mass, inertia, rotor geometry and coefficients) and reads
+only sensor observations. Position and velocity PID give a desired acceleration; the thrust direction and
+yaw give a desired attitude, tracked with the geometric attitude error of Lee et al. (2010) as a body-rate
+command; a PI rate loop gives angular accelerations, turned into torques with the inertia (plus the
+gyroscopic coupling), and the mixer inverts the control-effectiveness model of 000 eq. (8) (with the yaw
+row c_Q s_i of 004 eq. 7) for squared rotor speeds.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..envs.frames import rotation_matrix
+from ..envs.vehicles import GRAVITY, YAW_SIGNS, QuadrotorParams
+
+UP = np.array([0.0, 0.0, -1.0])  # NED
+
+
+@dataclass
+class ControllerGains:
+    position: tuple = (1.6, 1.6, 2.0)       # 1/s^2, acceleration per metre of error
+    velocity: tuple = (2.4, 2.4, 3.0)       # 1/s
+    position_integral: tuple = (0.4, 0.4, 0.8)
+    integral_limit: float = 2.0             # m/s^2, anti-windup on the integral's acceleration
+    attitude: tuple = (7.0, 7.0, 2.5)       # 1/s, rate command per rad of attitude error
+    rate: tuple = (18.0, 18.0, 8.0)         # 1/s, angular acceleration per rad/s of rate error
+    rate_integral: tuple = (4.0, 4.0, 1.0)
+    max_tilt_deg: float = 35.0
+    max_rate: tuple = (6.0, 6.0, 3.0)       # rad/s
+    gyro_cutoff_hz: float = 60.0            # first-order low-pass on the gyro against motor vibration
+
+
+class NominalController:
+    """Cascaded PID with model-based mixer; the `nominal` benchmark policy."""
+
+    def __init__(self, params: QuadrotorParams, agent_hz: float, gains: ControllerGains | None = None):
+        self.params = params
+        self.gains = gains or ControllerGains()
+        self.dt = 1.0 / agent_hz
+        g = self.gains
+        self._kp, self._kd, self._ki = (np.asarray(x, dtype=float) for x in (g.position, g.velocity, g.position_integral))
+        self._katt, self._krate, self._krate_i = (np.asarray(x, dtype=float) for x in (g.attitude, g.rate, g.rate_integral))
+        self._max_rate = np.asarray(g.max_rate, dtype=float)
+        self._max_horizontal = GRAVITY * np.tan(np.deg2rad(g.max_tilt_deg))
+        self._inertia = np.asarray(params.inertia, dtype=float)
+        self._gyro_alpha = 1.0 - np.exp(-2 * np.pi * g.gyro_cutoff_hz * self.dt)
+        self._mixer_inverse = np.linalg.inv(allocation_matrix(params))
+        self._w2_min, self._w2_max = params.omega_min ** 2, params.omega_max ** 2
+        self.thrust_axis_reference = UP.copy()
+        self.reset()
+
+    def reset(self, obs: dict | None = None, info: dict | None = None) -> None:
+        self._pos_integral = np.zeros(3)
+        self._rate_integral = np.zeros(3)
+        self._gyro = None if obs is None else np.asarray(obs["gyro"], dtype=float).copy()
+        self.thrust_axis_reference = UP.copy()
+
+    def act(self, obs: dict, info: dict | None = None) -> np.ndarray:
+        R = rotation_matrix(obs["attitude"])
+        accel = self._acceleration_command(obs)
+        thrust_vector = self.params.mass * (accel - np.array([0.0, 0.0, GRAVITY]))  # NED force wanted
+        axis = -thrust_vector / np.linalg.norm(thrust_vector)                       # desired body z (down)
+        self.thrust_axis_reference = -axis
+        thrust = float(-thrust_vector @ R[:, 2])
+        rates_cmd = self._attitude_command(R, axis, float(obs["reference_yaw"][0]))
+        torque = self._rate_command(obs["gyro"], rates_cmd)
+        return self.mix(max(thrust, 0.0), torque)
+
+    def _acceleration_command(self, obs) -> np.ndarray:
+        error = obs["reference_position"] - obs["position"]
+        self._pos_integral += error * self.dt
+        integral = np.clip(self._ki * self._pos_integral, -self.gains.integral_limit, self.gains.integral_limit)
+        self._pos_integral = np.where(self._ki > 0, integral / np.where(self._ki > 0, self._ki, 1.0), 0.0)
+        accel = self._kp * error + self._kd * (obs["reference_velocity"] - obs["velocity"]) + integral
+        horizontal = np.hypot(accel[0], accel[1])
+        if horizontal > self._max_horizontal:
+            accel[:2] *= self._max_horizontal / horizontal
+        accel[2] = min(accel[2], 0.8 * GRAVITY)  # never command less than 20% of hover thrust
+        return accel
+
+    def _attitude_command(self, R, z_des, yaw) -> np.ndarray:
+        """Body-rate command from the geometric attitude error e_R = vee(R_d^T R - R^T R_d) / 2 (Lee 2010)."""
+        x_c = np.array([np.cos(yaw), np.sin(yaw), 0.0])
+        y_des = np.cross(z_des, x_c)
+        y_des /= np.linalg.norm(y_des)
+        R_des = np.column_stack((np.cross(y_des, z_des), y_des, z_des))
+        E = R_des.T @ R - R.T @ R_des
+        e_R = 0.5 * np.array([E[2, 1], E[0, 2], E[1, 0]])
+        return np.clip(-self._katt * e_R, -self._max_rate, self._max_rate)
+
+    def _rate_command(self, gyro, rates_cmd) -> np.ndarray:
+        if self._gyro is None:
+            self._gyro = np.asarray(gyro, dtype=float).copy()
+        self._gyro += self._gyro_alpha * (gyro - self._gyro)
+        error = rates_cmd - self._gyro
+        self._rate_integral = np.clip(self._rate_integral + error * self.dt, -0.5, 0.5)
+        alpha = self._krate * error + self._krate_i * self._rate_integral
+        I, w = self._inertia, self._gyro
+        return I * alpha + np.cross(w, I * w)
+
+    def mix(self, thrust: float, torque) -> np.ndarray:
+        """Normalised rotor commands for a collective thrust (N) and body torques (N m).
+
+        When the rotors saturate, yaw torque is given up first (it matters least for staying aloft).
+        """
+        w2 = self._mixer_inverse @ np.array([thrust, torque[0], torque[1], torque[2]])
+        if w2.min() < self._w2_min or w2.max() > self._w2_max:
+            w2 = self._mixer_inverse @ np.array([thrust, torque[0], torque[1], 0.0])
+        omega = np.sqrt(np.clip(w2, self._w2_min, self._w2_max))
+        p = self.params
+        return np.clip((omega - p.omega_min) / (p.omega_max - p.omega_min), 0.0, 1.0).astype(np.float32)
+
+
+def allocation_matrix(params: QuadrotorParams) -> np.ndarray:
+    """[T, tau_x, tau_y, tau_z] = A omega^2 for nominal rotors (000 eq. 8; yaw row 004 eq. 7)."""
+    pos = params.rotor_positions
+    c_t, c_q = params.thrust_coefficient, params.torque_coefficient
+    return np.vstack([np.full(4, c_t), -c_t * pos[:, 1], c_t * pos[:, 0], c_q * np.asarray(YAW_SIGNS)])

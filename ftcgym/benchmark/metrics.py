@@ -1,0 +1,146 @@
+"""Benchmark metrics: per-episode numbers from a recorded trajectory, and their per-scenario summary.
+
+Pure numpy functions of arrays, testable without the simulator. Definitions are those of DESIGN.md
+("Benchmark"); the field lists below are its `results.json` contract.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ftcgym.fdd.metrics import false_alarms_per_hour, isolation_accuracy, missed_detection_rate
+
+EPISODE_FIELDS = (
+    "scenario", "policy", "seed", "fault_kind", "fault_target", "fault_onset", "alarm_time",
+    "detection_delay", "isolated_target", "isolation_correct", "false_alarm", "recovery_time",
+    "recovered", "crashed", "altitude_loss", "position_rmse", "airspeed_error_rmse", "flight_time",
+)
+SUMMARY_FIELDS = (
+    "scenario", "policy", "episodes", "detection_delay_median", "detection_delay_p95",
+    "missed_detection_rate", "false_alarms_per_hour", "isolation_accuracy",
+    "recovery_latency_median", "recovery_latency_p95", "success_rate", "crash_rate",
+)
+
+# Rotor-loss recovery (DESIGN.md): altitude within 0.5 m of its target and the thrust axis within
+# 10 deg of the controller's reference, held for 2 s.
+ALTITUDE_TOLERANCE = 0.5              # m
+THRUST_AXIS_TOLERANCE = np.radians(10.0)
+RECOVERY_HOLD = 2.0                   # s
+UP = np.array([0.0, 0.0, -1.0])       # NED: the thrust axis of a level vehicle
+
+
+def thrust_axis(attitude: np.ndarray) -> np.ndarray:
+    """Thrust directions (N, 3) in NED of FRD->NED quaternions (N, 4) x, y, z, w: body -z."""
+    return Rotation.from_quat(attitude).apply(-np.eye(3)[2])
+
+
+def thrust_axis_error(attitude: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Angle (rad, (N,)) between each thrust axis and its reference direction (N, 3)."""
+    reference = reference / np.linalg.norm(reference, axis=-1, keepdims=True)
+    cosine = np.sum(thrust_axis(attitude) * reference, axis=-1)
+    return np.arccos(np.clip(cosine, -1.0, 1.0))
+
+
+def hover_recovered(altitude, altitude_reference, axis_error) -> np.ndarray:
+    """Per-sample rotor-loss recovery condition (DESIGN.md): altitude and thrust axis on target."""
+    altitude_ok = np.abs(np.asarray(altitude) - np.asarray(altitude_reference)) <= ALTITUDE_TOLERANCE
+    return altitude_ok & (np.asarray(axis_error) <= THRUST_AXIS_TOLERANCE)
+
+
+def recovery_time(time, recovered, onset: float, hold: float = RECOVERY_HOLD) -> float | None:
+    """Start of the first window after `onset` in which `recovered` holds for `hold` s (DESIGN.md).
+
+    A stretch of recovered samples lasts until the next unrecovered sample, or until the last
+    sample if the episode ends recovered. None when no stretch lasts `hold` s.
+    """
+    time, recovered = np.asarray(time, dtype=float), np.asarray(recovered, dtype=bool)
+    after = time >= onset
+    time, recovered = time[after], recovered[after]
+    # Rising and falling edges of the recovered stretches; `stops` is one past each stretch.
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], recovered.astype(int), [0]))))
+    starts, stops = edges[::2], edges[1::2]
+    if starts.size == 0:
+        return None
+    ends = time[np.minimum(stops, len(time) - 1)]
+    long_enough = np.flatnonzero(ends - time[starts] >= hold - 1e-9)
+    return float(time[starts[long_enough[0]]]) if long_enough.size else None
+
+
+def altitude_loss(time, altitude, onset: float) -> float | None:
+    """Altitude at onset minus the lowest altitude after it, at least 0; None if onset is past the end."""
+    time, altitude = np.asarray(time, dtype=float), np.asarray(altitude, dtype=float)
+    after = altitude[time >= onset]
+    if after.size == 0:
+        return None
+    return max(0.0, float(after[0] - after.min()))
+
+
+def position_rmse(position, reference_position) -> float:
+    """Root mean square of the distance between position and reference position (both (N, 3))."""
+    error = np.asarray(position) - np.asarray(reference_position)
+    return float(np.sqrt(np.mean(np.sum(error**2, axis=-1))))
+
+
+def summarize(episodes: list[dict]) -> list[dict]:
+    """One row of SUMMARY_FIELDS per (scenario, policy), in order of first appearance."""
+    groups: dict[tuple[str, str], list[dict]] = {}
+    for episode in episodes:
+        groups.setdefault((episode["scenario"], episode["policy"]), []).append(episode)
+    return [_summary_row(scenario, policy, rows) for (scenario, policy), rows in groups.items()]
+
+
+def _summary_row(scenario: str, policy: str, rows: list[dict]) -> dict:
+    faulty = [row for row in rows if row["fault_onset"] is not None]
+    monitored = [row for row in rows if row["false_alarm"] is not None]  # a detector was scored
+    delays = [row["detection_delay"] for row in rows if row["detection_delay"] is not None]
+    latencies = [row["recovery_time"] - row["fault_onset"] for row in faulty if row["recovered"]]
+    return {
+        "scenario": scenario,
+        "policy": policy,
+        "episodes": len(rows),
+        "detection_delay_median": _percentile(delays, 50),
+        "detection_delay_p95": _percentile(delays, 95),
+        "missed_detection_rate": _missed_rate([row for row in faulty if row["false_alarm"] is not None]),
+        "false_alarms_per_hour": _false_alarm_rate(monitored),
+        "isolation_accuracy": _isolation_accuracy(rows),
+        "recovery_latency_median": _percentile(latencies, 50),
+        "recovery_latency_p95": _percentile(latencies, 95),
+        "success_rate": float(np.mean([_succeeded(row) for row in rows])) if rows else None,
+        "crash_rate": float(np.mean([bool(row["crashed"]) for row in rows])) if rows else None,
+    }
+
+
+def _percentile(values: list[float], q: float) -> float | None:
+    """The q-th percentile (linear interpolation, numpy's default), or None of nothing."""
+    return float(np.percentile(values, q)) if values else None
+
+
+def _missed_rate(rows: list[dict]) -> float | None:
+    if not rows:
+        return None
+    return missed_detection_rate([row["alarm_time"] for row in rows], [row["fault_onset"] for row in rows])
+
+
+def _false_alarm_rate(rows: list[dict]) -> float | None:
+    """False alarms per hour of fault-free flight: the time before onset, or the whole episode."""
+    exposure = sum(row["fault_onset"] if row["fault_onset"] is not None else row["flight_time"]
+                   for row in rows)
+    if not rows or exposure <= 0:
+        return None
+    return false_alarms_per_hour(sum(bool(row["false_alarm"]) for row in rows), exposure)
+
+
+def _isolation_accuracy(rows: list[dict]) -> float | None:
+    """Over the detected faults that have a target to isolate (a rotor, a sensor)."""
+    detected = [row for row in rows if row["detection_delay"] is not None and row["fault_target"] is not None]
+    if not detected:
+        return None
+    return isolation_accuracy([row["isolated_target"] for row in detected],
+                              [row["fault_target"] for row in detected])
+
+
+def _succeeded(row: dict) -> bool:
+    """DESIGN.md: recovered after a fault; in a fault-free episode, ended without a crash."""
+    if row["fault_onset"] is not None:
+        return bool(row["recovered"])
+    return not row["crashed"]

@@ -1,0 +1,137 @@
+"""Benchmark outputs (DESIGN.md "Benchmark"): results.json, episodes.csv, report.md, PNG plots, and
+the summary table printed to stdout.
+"""
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+from matplotlib.figure import Figure  # a bare Figure renders with Agg: no pyplot, no global backend
+
+from ftcgym.benchmark.metrics import EPISODE_FIELDS, SUMMARY_FIELDS
+
+# Short column labels for the tables; results.json and the CSV keep the full field names.
+COLUMN_LABELS = {
+    "scenario": "scenario", "policy": "policy", "episodes": "n",
+    "detection_delay_median": "delay med (s)", "detection_delay_p95": "delay p95 (s)",
+    "missed_detection_rate": "missed", "false_alarms_per_hour": "FA/h",
+    "isolation_accuracy": "isolation", "recovery_latency_median": "recovery med (s)",
+    "recovery_latency_p95": "recovery p95 (s)", "success_rate": "success", "crash_rate": "crash",
+}
+DEFINITIONS = (
+    "Definitions (DESIGN.md): detection delay = alarm time - fault onset, over detected faults; "
+    "missed = fraction of fault episodes whose alarm never came at or after onset; a false alarm is "
+    "an alarm before onset or in a fault-free episode, FA/h counts them per hour of fault-free flight "
+    "(before onset, or the whole episode); isolation = fraction of detected faults attributed to the "
+    "right target. Recovery time is the start of the first window after onset in which the vehicle "
+    "stays recovered for 2 s; for a rotor loss, recovered means altitude within 0.5 m of its target "
+    "and the thrust axis within 10 deg of the controller's reference. Recovery latency = recovery "
+    "time - onset, over recovered episodes. Success = recovered (and not crashed) after a fault, or "
+    "no crash in a fault-free episode. Medians and 95th percentiles interpolate linearly; '-' marks "
+    "a figure that does not apply."
+)
+
+
+def format_value(value) -> str:
+    """A table cell: 3 significant digits for floats, '-' for None."""
+    if value is None:
+        return "-"
+    if isinstance(value, float):
+        return f"{value:.3g}"
+    return str(value)
+
+
+def format_table(summary: list[dict]) -> str:
+    """The summary as a plain text table, text left-aligned and numbers right-aligned."""
+    header = [COLUMN_LABELS[field] for field in SUMMARY_FIELDS]
+    cells = [[format_value(row[field]) for field in SUMMARY_FIELDS] for row in summary]
+    widths = [max(len(column) for column in columns) for columns in zip(header, *cells)]
+    text_columns = 2  # scenario and policy
+
+    def line(values):
+        return "  ".join(value.ljust(width) if i < text_columns else value.rjust(width)
+                         for i, (value, width) in enumerate(zip(values, widths))).rstrip()
+
+    return "\n".join([line(header), line(["-" * width for width in widths]), *map(line, cells)])
+
+
+def markdown_table(summary: list[dict]) -> str:
+    header = [COLUMN_LABELS[field] for field in SUMMARY_FIELDS]
+    rows = [[format_value(row[field]) for field in SUMMARY_FIELDS] for row in summary]
+    return "\n".join("| " + " | ".join(cells) + " |"
+                     for cells in [header, ["---"] * len(header), *rows])
+
+
+def write_report(out_dir, summary: list[dict], episodes: list[dict], config: dict) -> list[Path]:
+    """Write results.json, episodes.csv, one PNG per scenario and report.md; return their paths."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rows = [{field: episode[field] for field in EPISODE_FIELDS} for episode in episodes]
+    paths = [write_json(out_dir / "results.json", {"summary": summary, "episodes": rows, "config": config}),
+             write_csv(out_dir / "episodes.csv", rows)]
+    plots = [plot_scenario(out_dir / f"{name}.png", name, _of_scenario(episodes, name))
+             for name in dict.fromkeys(episode["scenario"] for episode in episodes)]
+    paths.append(write_markdown(out_dir / "report.md", summary, config, plots))
+    return paths + plots
+
+
+def write_json(path: Path, results: dict) -> Path:
+    path.write_text(json.dumps(results, indent=2) + "\n")
+    return path
+
+
+def write_csv(path: Path, rows: list[dict]) -> Path:
+    """One line per episode; None becomes an empty cell."""
+    with path.open("w", newline="") as file:
+        writer = csv.DictWriter(file, fieldnames=EPISODE_FIELDS)
+        writer.writeheader()
+        writer.writerows(rows)
+    return path
+
+
+def write_markdown(path: Path, summary: list[dict], config: dict, plots: list[Path]) -> Path:
+    scenario_lines = [f"- `{s['name']}` ({s['env_id']}, policies {', '.join(s['policies'])}, "
+                      f"{s['episodes']} episodes): {s['description']}" for s in config["scenarios"]]
+    plot_lines = [f"![{plot.stem}]({plot.name})" for plot in plots]
+    text = "\n\n".join([
+        "# ftcgym benchmark",
+        f"`{config['command']}` (ftcgym {config['ftcgym_version']}, seed {config['seed']}, "
+        f"{config['workers']} workers, {config['wall_time_s']:.0f} s wall time). Environment "
+        "overrides: " + (f"`{json.dumps(config['env_overrides'])}`" if config["env_overrides"] else "none") + ".",
+        "## Scenarios", "\n".join(scenario_lines),
+        "## Summary", markdown_table(summary), DEFINITIONS,
+        "## Plots", "Altitude and horizontal path of every episode; dotted lines mark fault onsets, "
+        "dashed black lines the reference.", "\n\n".join(plot_lines),
+    ])
+    path.write_text(text + "\n")
+    return path
+
+
+def plot_scenario(path: Path, scenario: str, episodes: list[dict]) -> Path:
+    """Altitude vs time and the horizontal path (north up, east right) of each episode, by policy."""
+    figure = Figure(figsize=(11, 4), layout="constrained")
+    altitude_axes, path_axes = figure.subplots(1, 2, width_ratios=(3, 2))
+    reference = episodes[0]["trajectory"]
+    altitude_axes.plot(reference["time"], -reference["reference_position"][:, 2], "k--", lw=1)
+    path_axes.plot(reference["reference_position"][:, 1], reference["reference_position"][:, 0], "k--", lw=1)
+    policies = dict.fromkeys(episode["policy"] for episode in episodes)
+    colors = {policy: f"C{i % 10}" for i, policy in enumerate(policies)}
+    for episode in episodes:
+        color, trajectory = colors[episode["policy"]], episode["trajectory"]
+        altitude_axes.plot(trajectory["time"], -trajectory["position"][:, 2], color=color, lw=1, alpha=0.8)
+        path_axes.plot(trajectory["position"][:, 1], trajectory["position"][:, 0], color=color, lw=1, alpha=0.8)
+        if episode["fault_onset"] is not None:
+            altitude_axes.axvline(episode["fault_onset"], color=color, ls=":", lw=1)
+    for policy, color in colors.items():
+        altitude_axes.plot([], [], color=color, label=policy)
+    altitude_axes.set(title=scenario, xlabel="time (s)", ylabel="altitude (m)")
+    altitude_axes.legend(loc="best", fontsize="small")
+    path_axes.set(title="horizontal path", xlabel="east (m)", ylabel="north (m)")
+    path_axes.set_aspect("equal", adjustable="datalim")
+    figure.savefig(path, dpi=100)
+    return path
+
+
+def _of_scenario(episodes: list[dict], name: str) -> list[dict]:
+    return [episode for episode in episodes if episode["scenario"] == name]

@@ -1,0 +1,248 @@
+"""Fly policies through scenarios, record each episode and score it (DESIGN.md "Benchmark").
+
+`run_episode` flies one episode and returns its row of `EPISODE_FIELDS` plus a compact trajectory
+under "trajectory" (for plots, never written to CSV or JSON). `run_benchmark` runs many episodes,
+in worker processes when asked, and returns the rows in a fixed order. Episode seeds depend only on
+the base seed and the episode index, so every policy flies the same episodes and a seed reproduces
+the numbers.
+"""
+from __future__ import annotations
+
+import copy
+import os
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
+
+import gymnasium as gym
+import numpy as np
+from tqdm import tqdm
+
+from ftcgym.benchmark import metrics
+from ftcgym.benchmark.scenarios import Scenario, get_scenario
+from ftcgym.fdd.metrics import detection_delay, is_false_alarm
+
+# What a policy must not see (DESIGN.md): it learns of a fault only from detectors.
+PRIVATE_INFO_KEYS = ("truth", "fault", "faults")
+TRAJECTORY_MAX_HZ = 50.0
+
+
+def episode_seed(seed: int, index: int) -> int:
+    """The env seed of episode `index` of a run seeded with `seed`."""
+    return int(np.random.SeedSequence([seed, index]).generate_state(1)[0])
+
+
+def policy_view(info: dict, policy) -> dict:
+    """A copy of `info` without ground truth; an oracle (`uses_true_onset`) also gets the true onset."""
+    view = {key: value for key, value in info.items() if key not in PRIVATE_INFO_KEYS}
+    if getattr(policy, "uses_true_onset", False):
+        view["oracle_onset_time"] = info["fault"]["onset_time"]
+    return view
+
+
+def thrust_axis_reference(policy) -> np.ndarray:
+    """Where the policy wants the thrust axis (NED unit vector); straight up unless it says otherwise."""
+    return np.array(getattr(policy, "thrust_axis_reference", metrics.UP), dtype=float)
+
+
+@dataclass
+class EpisodeLog:
+    """What one episode recorded, one row per agent step (the reset state first)."""
+
+    time: np.ndarray                   # (N,) s
+    position: np.ndarray               # (N, 3) NED m, truth
+    reference_position: np.ndarray     # (N, 3) NED m, the task's setpoint
+    attitude: np.ndarray               # (N, 4) FRD->NED quaternion x, y, z, w, truth
+    rotor_speed: np.ndarray            # (N, 4) rad/s, truth
+    thrust_axis_reference: np.ndarray  # (N, 3) NED unit vectors, from the policy
+    fault: dict | None                 # info["fault"] at the first onset, None if no fault began
+    detector: str | None
+    alarm_time: float | None           # first alarm of `detector`
+    isolated: object                   # first target `detector` isolated at or after its alarm
+    crashed: bool
+
+
+class _Recorder:
+    """Collects per-step truth and latches the first fault onset and the first alarm."""
+
+    def __init__(self, detector: str | None):
+        self.detector = detector
+        self.rows: dict[str, list] = {name: [] for name in (
+            "time", "position", "reference_position", "attitude", "rotor_speed", "thrust_axis_reference")}
+        self.fault = None
+        self.alarm_time = None
+        self.isolated = None
+        self.detector_seen = False
+
+    def record(self, info: dict, axis_reference: np.ndarray) -> None:
+        truth = info["truth"]
+        for name, value in (("time", info["time"]), ("position", truth["position"]),
+                            ("reference_position", info["reference"]["position"]),
+                            ("attitude", truth["attitude"]), ("rotor_speed", truth["rotor_speed"]),
+                            ("thrust_axis_reference", axis_reference)):
+            self.rows[name].append(np.array(value, dtype=float))
+        if self.fault is None and info["fault"]["onset_time"] is not None:
+            self.fault = dict(info["fault"])
+        if self.detector is not None:
+            self._latch_alarm(info)
+
+    def _latch_alarm(self, info: dict) -> None:
+        entry = info.get("fdd", {}).get(self.detector)
+        if entry is None:
+            return
+        self.detector_seen = True
+        if self.alarm_time is None:
+            alarm_time = entry.get("alarm_time")
+            self.alarm_time = info["time"] if alarm_time is None and entry.get("alarm") else alarm_time
+        if self.alarm_time is not None and self.isolated is None:
+            self.isolated = entry.get("isolated")
+
+    def finish(self, final_info: dict) -> EpisodeLog:
+        if self.detector is not None and not self.detector_seen:
+            raise ValueError(f"detector {self.detector!r} never appeared in info['fdd']: "
+                             "wrap the env with it (Scenario.wrappers or env kwargs)")
+        return EpisodeLog(**{name: np.array(values) for name, values in self.rows.items()},
+                          fault=self.fault, detector=self.detector, alarm_time=self.alarm_time,
+                          isolated=self.isolated, crashed=bool(final_info["crashed"]))
+
+
+def roll_out(env: gym.Env, policy, seed: int, detector: str | None = None) -> EpisodeLog:
+    """Fly one episode of `policy` in `env` from `env.reset(seed=seed)` and record it."""
+    obs, info = env.reset(seed=seed)
+    policy.reset(obs, policy_view(info, policy))
+    recorder = _Recorder(detector)
+    while True:
+        action = policy.act(obs, policy_view(info, policy))
+        recorder.record(info, thrust_axis_reference(policy))
+        obs, _, terminated, truncated, info = env.step(action)
+        if terminated or truncated:
+            break
+    recorder.record(info, thrust_axis_reference(policy))
+    return recorder.finish(info)
+
+
+def score_episode(log: EpisodeLog) -> dict:
+    """The metric fields of an episode row (EPISODE_FIELDS less scenario, policy and seed)."""
+    fault = log.fault or {}
+    onset = fault.get("onset_time")
+    altitude = -log.position[:, 2]
+    scores = {
+        "fault_kind": fault.get("kind"),
+        "fault_target": fault.get("target"),
+        "fault_onset": onset,
+        **_detection_fields(log, onset, fault.get("target")),
+        "recovery_time": None,
+        "recovered": None,
+        "crashed": log.crashed,
+        "altitude_loss": None,
+        "position_rmse": metrics.position_rmse(log.position, log.reference_position),
+        "airspeed_error_rmse": None,  # the quadrotor has no airspeed source to get wrong
+        "flight_time": float(log.time[-1]),
+    }
+    if onset is not None:
+        # The rotor-loss criterion (DESIGN.md) serves every quadrotor fault; airspeed faults of the
+        # quad-plane will need their own.
+        axis_error = metrics.thrust_axis_error(log.attitude, log.thrust_axis_reference)
+        recovered = metrics.hover_recovered(altitude, -log.reference_position[:, 2], axis_error)
+        scores["recovery_time"] = metrics.recovery_time(log.time, recovered, onset)
+        scores["recovered"] = scores["recovery_time"] is not None and not log.crashed
+        scores["altitude_loss"] = metrics.altitude_loss(log.time, altitude, onset)
+    return scores
+
+
+def _detection_fields(log: EpisodeLog, onset, target) -> dict:
+    """Alarm, delay, isolation and false-alarm fields; all None when no detector is scored."""
+    if log.detector is None:
+        return dict.fromkeys(("alarm_time", "detection_delay", "isolated_target",
+                              "isolation_correct", "false_alarm"))
+    has_target = onset is not None and target is not None
+    return {
+        "alarm_time": log.alarm_time,
+        "detection_delay": detection_delay(log.alarm_time, onset),
+        "isolated_target": log.isolated,
+        "isolation_correct": _native(log.isolated) == _native(target) if has_target else None,
+        "false_alarm": is_false_alarm(log.alarm_time, onset),
+    }
+
+
+def trajectory(log: EpisodeLog, max_hz: float = TRAJECTORY_MAX_HZ) -> dict[str, np.ndarray]:
+    """The log's time, position, reference position, attitude and rotor speeds at <= `max_hz`."""
+    step = float(np.median(np.diff(log.time))) if len(log.time) > 1 else 1.0
+    stride = max(1, int(np.ceil(1.0 / (max_hz * step) - 1e-9)))
+    keep = np.unique(np.append(np.arange(0, len(log.time), stride), len(log.time) - 1))
+    return {name: getattr(log, name)[keep]
+            for name in ("time", "position", "reference_position", "attitude", "rotor_speed")}
+
+
+def make_env(scenario: Scenario, env_overrides: dict | None = None) -> gym.Env:
+    """The scenario's env, its kwargs updated (top-level keys) by `env_overrides`, then wrapped."""
+    kwargs = copy.deepcopy({**scenario.env_kwargs, **(env_overrides or {})})
+    env = gym.make(scenario.env_id, **kwargs)
+    for wrap in scenario.wrappers:
+        env = wrap(env)
+    return env
+
+
+def run_episode(scenario: Scenario | str, policy_name: str, seed: int,
+                env_overrides: dict | None = None) -> dict:
+    """One episode: its row of EPISODE_FIELDS (JSON-ready values) plus "trajectory" (arrays)."""
+    # Imported here: recording and scoring also serve fake envs and logs, without the controllers.
+    from ftcgym.agents import make_policy
+
+    scenario = get_scenario(scenario) if isinstance(scenario, str) else scenario
+    env = make_env(scenario, env_overrides)
+    try:
+        log = roll_out(env, make_policy(policy_name, env), seed, scenario.detector)
+    finally:
+        env.close()
+    values = {"scenario": scenario.name, "policy": policy_name, "seed": int(seed), **score_episode(log)}
+    row = {name: _native(values[name]) for name in metrics.EPISODE_FIELDS}
+    row["trajectory"] = trajectory(log)
+    return row
+
+
+def run_benchmark(scenarios, policies=None, episodes: int | None = None, seed: int = 0,
+                  workers: int | None = 1, env_overrides: dict | None = None,
+                  progress: bool = True) -> list[dict]:
+    """Run every (scenario, policy, episode) and return the episode rows in that nested order.
+
+    `scenarios` are Scenario objects or names; `policies` and `episodes` default to each scenario's
+    own. `workers` > 1 runs episodes in that many processes (None: one per CPU); 1 runs in-process.
+    """
+    jobs = [(scenario, policy, episode_seed(seed, index), env_overrides)
+            for scenario in (get_scenario(s) if isinstance(s, str) else s for s in scenarios)
+            for policy in (policies or scenario.policies)
+            for index in range(episodes or scenario.episodes)]
+    workers = min(workers or os.cpu_count() or 1, max(len(jobs), 1))
+    with tqdm(total=len(jobs), desc="bench", unit="episode", disable=not progress) as bar:
+        if workers == 1:
+            return [_advance(bar, run_episode(*job)) for job in jobs]
+        return _run_in_pool(jobs, workers, bar)
+
+
+def _run_in_pool(jobs: list[tuple], workers: int, bar: tqdm) -> list[dict]:
+    """Run jobs in processes, ticking `bar` as they finish; results in job order, first error raised."""
+    with ProcessPoolExecutor(workers) as pool:
+        futures = [pool.submit(run_episode, *job) for job in jobs]
+        try:
+            for future in as_completed(futures):
+                _advance(bar, future.result())
+        except BaseException:
+            pool.shutdown(cancel_futures=True)
+            raise
+        return [future.result() for future in futures]
+
+
+def _advance(bar: tqdm, result):
+    bar.update()
+    return result
+
+
+def _native(value):
+    """numpy scalars and arrays as plain Python values, so rows serialise to JSON and compare simply."""
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, (list, tuple)):
+        return [_native(item) for item in value]
+    return value

@@ -1,0 +1,176 @@
+"""The `ftcgym` command line.
+
+    ftcgym bench [--scenario NAME...] [--policy NAME...] [--episodes N] [--seed S] [--workers W]
+                 [--env-kwargs JSON] [--out DIR] [--list]
+    ftcgym perf ...   (see ftcgym/perf.py)
+
+`ftcgym bench` with no arguments runs the default scenarios and prints a summary table (DESIGN.md
+"Benchmark").
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shlex
+import sys
+import time
+from importlib import metadata
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = build_parser().parse_args(argv)
+    return args.run(args, argv) or 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="ftcgym", description="Fault-tolerant flight control testbed.")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
+    subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    _add_bench(subparsers)
+    # ---- further subcommands, one `_add_<name>(subparsers)` each (replay and train to come) ----
+    _add_perf(subparsers)
+    return parser
+
+
+def package_version() -> str:
+    try:
+        return metadata.version("ftcgym")
+    except metadata.PackageNotFoundError:
+        return "unknown"
+
+
+# ---- bench ----
+
+def _add_bench(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "bench", help="run the fault-tolerance benchmark",
+        description="Fly policies through benchmark scenarios and report detection and recovery metrics. "
+                    "Without --scenario, runs the default scenarios.")
+    parser.add_argument("--scenario", nargs="+", metavar="NAME", type=_scenario,
+                        help="scenarios to run (default: the default set; see --list)")
+    parser.add_argument("--policy", nargs="+", metavar="NAME", type=_policy_name,
+                        help="policies to fly in every scenario (default: each scenario's own)")
+    parser.add_argument("--episodes", type=_positive_int, metavar="N",
+                        help="episodes per scenario and policy (default: each scenario's own)")
+    parser.add_argument("--seed", type=int, default=0, metavar="S", help="base seed (default: 0)")
+    parser.add_argument("--workers", type=_positive_int, default=os.cpu_count() or 1, metavar="W",
+                        help="worker processes; 1 runs in-process (default: one per CPU)")
+    parser.add_argument("--env-kwargs", type=_json_object, default={}, metavar="JSON",
+                        help="JSON object merged (top-level keys) into every scenario's gym.make kwargs")
+    parser.add_argument("--out", default="bench_out", metavar="DIR",
+                        help="output directory (default: bench_out)")
+    parser.add_argument("--list", action="store_true", help="list scenarios and policies, then exit")
+    parser.set_defaults(run=_run_bench)
+
+
+def _run_bench(args, argv: list[str]) -> int:
+    if args.list:
+        print(_listing())
+        return 0
+    from ftcgym.benchmark.metrics import summarize
+    from ftcgym.benchmark.report import format_table, write_report
+    from ftcgym.benchmark.runner import run_benchmark
+    from ftcgym.benchmark.scenarios import default_scenarios
+
+    scenarios = args.scenario or default_scenarios()
+    started = time.perf_counter()
+    episodes = run_benchmark(scenarios, args.policy, args.episodes, args.seed, args.workers, args.env_kwargs)
+    summary = summarize(episodes)
+    config = _bench_config(args, argv, scenarios, wall_time_s=time.perf_counter() - started)
+    paths = write_report(args.out, summary, episodes, config)
+    print(format_table(summary))
+    print(f"\n{len(episodes)} episodes in {config['wall_time_s']:.1f} s; "
+          f"wrote {', '.join(path.name for path in paths)} to {args.out}")
+    return 0
+
+
+def _bench_config(args, argv: list[str], scenarios, wall_time_s: float) -> dict:
+    """The run's settings as written to results.json: enough to repeat it."""
+    return {
+        "command": shlex.join(["ftcgym", *argv]),
+        "ftcgym_version": package_version(),
+        "seed": args.seed,
+        "episodes": args.episodes,
+        "policies": args.policy,
+        "workers": args.workers,
+        "env_overrides": args.env_kwargs,
+        "scenarios": [{
+            "name": scenario.name,
+            "env_id": scenario.env_id,
+            "env_kwargs": {**scenario.env_kwargs, **args.env_kwargs},
+            "policies": list(args.policy or scenario.policies),
+            "episodes": args.episodes or scenario.episodes,
+            "detector": scenario.detector,
+            "description": scenario.description,
+        } for scenario in scenarios],
+        "wall_time_s": wall_time_s,
+    }
+
+
+def _listing() -> str:
+    from ftcgym import agents
+    from ftcgym.benchmark.scenarios import SCENARIOS
+
+    # agents may describe its policies in POLICY_DESCRIPTIONS (name -> one line); names alone otherwise.
+    descriptions = getattr(agents, "POLICY_DESCRIPTIONS", {})
+
+    width = max(map(len, [*SCENARIOS, *agents.POLICY_NAMES]))
+    lines = ["scenarios (* = run by default):"]
+    lines += [f"  {name:<{width}} {'*' if s.default else ' '} {s.description}" for name, s in SCENARIOS.items()]
+    lines += ["policies:"]
+    lines += [f"  {name:<{width}}   {descriptions.get(name, '')}".rstrip() for name in agents.POLICY_NAMES]
+    return "\n".join(lines)
+
+
+# Argument types: argparse turns their errors into a usage message.
+
+def _scenario(name: str):
+    from ftcgym.benchmark.scenarios import get_scenario
+    try:
+        return get_scenario(name)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
+def _policy_name(name: str) -> str:
+    from ftcgym.agents import POLICY_NAMES
+    if name not in POLICY_NAMES:
+        raise argparse.ArgumentTypeError(f"unknown policy {name!r}; available: {', '.join(POLICY_NAMES)}")
+    return name
+
+
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text}")
+    return value
+
+
+def _json_object(text: str) -> dict:
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as error:
+        raise argparse.ArgumentTypeError(f"invalid JSON ({error})") from None
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError(f"expected a JSON object of gym.make kwargs, got {text}")
+    return value
+
+
+# ---- perf (ftcgym/perf.py provides add_arguments(parser) and main(args)) ----
+
+def _add_perf(subparsers) -> None:
+    try:
+        import ftcgym.perf as perf  # imported here, not at the top: only the perf command needs it
+    except ModuleNotFoundError as error:
+        if error.name != "ftcgym.perf":
+            raise
+        return  # not written yet: no perf command
+    parser = subparsers.add_parser("perf", help="measure simulation speed and memory")
+    perf.add_arguments(parser)
+    parser.set_defaults(run=lambda args, argv: perf.main(args))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,234 @@
+"""Fault specifications, their validation and their effects over time.
+
+A fault is attached to a channel (a rotor, a sensor, the vehicle's mass), has an onset and ground truth,
+in the spirit of safe-control-gym's disturbances. Faults are given to the env as dicts or `FaultSpec`s,
+or sampled from the env's seeded RNG with "random:<kind>".
+
+Kinds (quadrotor):
+- rotor_loss: propeller ejection (000 Sec. III-A): thrust and drag torque of rotor `target` vanish, its ESC
+  still reports a speed and the unloaded motor spins up. magnitude is 1 (total).
+- loe: loss of effectiveness of rotor(s) `target` (int or list): a step to `magnitude` (fraction lost), or,
+  with `rate` (1/s), a ramp rate*(t - time) capped at `magnitude` (002 Sec. 5.2: 0.1/s capped at 0.5).
+- payload: the mass changes by `magnitude` kg linearly over `duration` s (004 Sec. 5.1: +0.5 kg over 2 s).
+- sensor_bias / sensor_stuck / sensor_dropout: sensor `target` (an observation key) reads value + magnitude,
+  holds its value at onset, or reads zero; for `duration` s or for good.
+Rotor targets are 0-based indices (0 is 000's r1). "random" as a target draws uniformly; a time given as
+[lo, hi] draws uniformly from that interval.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+ROTOR_KINDS = ("rotor_loss", "loe")
+SENSOR_KINDS = ("sensor_bias", "sensor_stuck", "sensor_dropout")
+KINDS = ROTOR_KINDS + ("payload",) + SENSOR_KINDS
+RANDOM_ONSET_WINDOW = (2.0, 5.0)  # s, onset window of "random:<kind>" (DESIGN.md scenario quad-rotor-loss-hover)
+_DEFAULT_MAGNITUDE = {"rotor_loss": 1.0, "loe": 0.5, "payload": 0.5, "sensor_bias": 0.1,
+                      "sensor_stuck": None, "sensor_dropout": None}
+_FIELDS = ("kind", "target", "time", "magnitude", "rate", "duration")
+
+
+@dataclass(frozen=True)
+class FaultSpec:
+    """One fault. `target` and `time` may be "random" / [lo, hi] until resolved by the env's RNG."""
+
+    kind: str
+    target: object = None
+    time: object = 0.0
+    magnitude: float | None = None
+    rate: float | None = None       # 1/s, loe ramp rate; None for a step
+    duration: float | None = None   # s, payload ramp length / sensor fault length (None: permanent)
+
+    def to_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        if isinstance(d["target"], tuple):
+            d["target"] = list(d["target"])
+        return d
+
+
+def parse_faults(faults, n_rotors: int, sensor_names: Sequence[str]) -> list[FaultSpec]:
+    """Validate the env's `faults` kwarg into a list of (possibly unresolved) FaultSpecs."""
+    if faults is None:
+        return []
+    if isinstance(faults, (str, dict, FaultSpec)):
+        faults = [faults]
+    if not isinstance(faults, (list, tuple)):
+        raise ValueError(f"faults: expected a list of fault dicts, a FaultSpec or 'random:<kind>', got {faults!r}")
+    return [_parse_one(f, i, n_rotors, sensor_names) for i, f in enumerate(faults)]
+
+
+def _parse_one(spec, index: int, n_rotors: int, sensor_names) -> FaultSpec:
+    where = f"faults[{index}]"
+    if isinstance(spec, str):
+        prefix, _, kind = spec.partition(":")
+        if prefix != "random" or kind not in KINDS:
+            raise ValueError(f"{where}: string specs must be 'random:<kind>' with kind in {list(KINDS)}, got {spec!r}")
+        target = "random" if kind != "payload" else None
+        spec = {"kind": kind, "target": target, "time": list(RANDOM_ONSET_WINDOW)}
+    if isinstance(spec, FaultSpec):
+        spec = spec.to_dict()
+    if not isinstance(spec, dict):
+        raise ValueError(f"{where}: expected a dict with keys {list(_FIELDS)}, got {type(spec).__name__}")
+    unknown = set(spec) - set(_FIELDS)
+    if unknown:
+        raise ValueError(f"{where}: unknown key(s) {sorted(unknown)}; accepted: {list(_FIELDS)}")
+    kind = spec.get("kind")
+    if kind not in KINDS:
+        raise ValueError(f"{where}.kind: {kind!r} is not a fault kind; accepted: {list(KINDS)}")
+    return FaultSpec(
+        kind=kind,
+        target=_check_target(kind, spec.get("target"), f"{where}.target", n_rotors, sensor_names),
+        time=_check_time(spec.get("time", 0.0), f"{where}.time"),
+        magnitude=_check_magnitude(kind, spec.get("magnitude", _DEFAULT_MAGNITUDE[kind]), f"{where}.magnitude"),
+        rate=_check_positive(spec.get("rate"), f"{where}.rate", kind == "loe"),
+        duration=_check_positive(spec.get("duration"), f"{where}.duration", kind in ("payload",) + SENSOR_KINDS),
+    )
+
+
+def _check_target(kind, target, where, n_rotors, sensor_names):
+    if kind in ROTOR_KINDS:
+        if target == "random":
+            return target
+        targets = target if isinstance(target, (list, tuple)) and kind == "loe" else [target]
+        ok = all(isinstance(t, (int, np.integer)) and not isinstance(t, bool) and 0 <= t < n_rotors for t in targets)
+        if not ok or not targets:
+            accepted = "a rotor index 0..%d, 'random'" % (n_rotors - 1) + (" or a list of indices" if kind == "loe" else "")
+            raise ValueError(f"{where}: {target!r} is not accepted for {kind}; accepted: {accepted}")
+        return tuple(int(t) for t in targets) if kind == "loe" else int(target)
+    if kind in SENSOR_KINDS:
+        if target not in sensor_names:
+            raise ValueError(f"{where}: {target!r} is not a sensor; accepted: {list(sensor_names)}")
+        return target
+    if target is not None:
+        raise ValueError(f"{where}: payload faults take no target (got {target!r})")
+    return None
+
+
+def _check_time(time, where):
+    if isinstance(time, (list, tuple)):
+        if len(time) != 2 or not all(_finite(t) for t in time) or not 0 <= time[0] <= time[1]:
+            raise ValueError(f"{where}: an interval must be [lo, hi] with 0 <= lo <= hi, got {time!r}")
+        return (float(time[0]), float(time[1]))
+    if not _finite(time) or time < 0:
+        raise ValueError(f"{where}: must be a finite time >= 0 s or an interval [lo, hi], got {time!r}")
+    return float(time)
+
+
+def _check_magnitude(kind, magnitude, where):
+    if magnitude is None:
+        return None
+    if kind == "sensor_bias":
+        arr = np.asarray(magnitude, dtype=float)
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f"{where}: must be finite, got {magnitude!r}")
+        return float(arr) if arr.ndim == 0 else tuple(arr.tolist())
+    if not _finite(magnitude):
+        raise ValueError(f"{where}: must be a finite number, got {magnitude!r}")
+    if kind in ROTOR_KINDS and not 0 < magnitude <= 1:
+        raise ValueError(f"{where}: the fraction of effectiveness lost must be in (0, 1], got {magnitude!r}")
+    return float(magnitude)
+
+
+def _check_positive(value, where, allowed):
+    if value is None:
+        return None
+    if not allowed:
+        raise ValueError(f"{where}: not used by this fault kind; leave it out")
+    if not _finite(value) or value <= 0:
+        raise ValueError(f"{where}: must be a finite number > 0, got {value!r}")
+    return float(value)
+
+
+def _finite(x) -> bool:
+    return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, bool) and bool(np.isfinite(x))
+
+
+def resolve(specs: list[FaultSpec], rng: np.random.Generator, n_rotors: int) -> list[FaultSpec]:
+    """Draw every random target and onset from the env's RNG."""
+    out = []
+    for s in specs:
+        target, time = s.target, s.time
+        if target == "random":
+            target = int(rng.integers(n_rotors))
+            if s.kind == "loe":
+                target = (target,)
+        if isinstance(time, tuple):
+            time = float(rng.uniform(*time))
+        out.append(dataclasses.replace(s, target=target, time=time))
+    return out
+
+
+class FaultSchedule:
+    """The resolved faults of one episode and what they do at time t."""
+
+    def __init__(self, specs: list[FaultSpec], n_rotors: int):
+        self.specs = sorted(specs, key=lambda s: s.time)
+        self.n_rotors = n_rotors
+        self._rotor = [s for s in self.specs if s.kind in ROTOR_KINDS]
+        self._payload = [s for s in self.specs if s.kind == "payload"]
+        self._sensor = [s for s in self.specs if s.kind in SENSOR_KINDS]
+        self._stuck: dict[int, np.ndarray] = {}
+
+    def rotor_state(self, t: float, effectiveness: np.ndarray, loaded: np.ndarray) -> None:
+        """Write the effectiveness and propeller presence at time t into the given arrays."""
+        effectiveness[:] = 1.0
+        loaded[:] = True
+        for s in self._rotor:
+            if t < s.time:
+                continue
+            if s.kind == "rotor_loss":
+                effectiveness[s.target] = 0.0
+                loaded[s.target] = False
+            else:
+                lost = s.magnitude if s.rate is None else min(s.rate * (t - s.time), s.magnitude)
+                for i in s.target:
+                    effectiveness[i] *= 1.0 - lost
+
+    def added_mass(self, t: float) -> float:
+        total = 0.0
+        for s in self._payload:
+            if t >= s.time:
+                ramp = 1.0 if not s.duration else min((t - s.time) / s.duration, 1.0)
+                total += s.magnitude * ramp
+        return total
+
+    def apply_to_sensors(self, t: float, readings: dict) -> dict:
+        """Corrupt the sensor readings in place per the active sensor faults."""
+        for i, s in enumerate(self._sensor):
+            if t < s.time or (s.duration is not None and t >= s.time + s.duration):
+                continue
+            value = readings[s.target]
+            if s.kind == "sensor_bias":
+                readings[s.target] = value + np.asarray(s.magnitude)
+            elif s.kind == "sensor_dropout":
+                readings[s.target] = np.zeros_like(value)
+            else:
+                readings[s.target] = self._stuck.setdefault(i, value.copy()).copy()
+        return readings
+
+    def current(self, t: float) -> dict:
+        """info["fault"]: the latest fault in force at t, else the next scheduled one (inactive)."""
+        active = [s for s in self.specs if s.time <= t]
+        if active:
+            s = active[-1]
+            return {"active": True, "kind": s.kind, "target": _public(s.target), "onset_time": s.time,
+                    "magnitude": _public(s.magnitude)}
+        if self.specs:
+            s = self.specs[0]
+            return {"active": False, "kind": s.kind, "target": _public(s.target), "onset_time": None,
+                    "magnitude": _public(s.magnitude)}
+        return {"active": False, "kind": None, "target": None, "onset_time": None, "magnitude": None}
+
+    def as_dicts(self) -> list[dict]:
+        return [s.to_dict() for s in self.specs]
+
+
+def _public(value):
+    """A JSON-friendly value (a single-rotor tuple reads as its index)."""
+    if isinstance(value, tuple):
+        return value[0] if len(value) == 1 else list(value)
+    return value

@@ -1,0 +1,260 @@
+"""`ftcgym/Quadrotor-v0`: a PyBullet quadrotor with sensors, wind and faults (Gymnasium API).
+
+Action: Box(0, 1, (4,)) normalised rotor-speed commands, omega_cmd = omega_min + u (omega_max - omega_min),
+rotors r1..r4 of 000 Fig. 2 (index 0 is r1). Out-of-range commands are clipped to [0, 1]; a wrong shape,
+NaN or infinite command raises ValueError (nothing non-finite reaches the physics).
+
+Observation: a Dict of sensor readings (see `sensors.py`), all float64, NED world / FRD body:
+  gyro (3) rad/s, accel (3) m/s^2 specific force, attitude (4) quaternion x y z w (truth + small random
+  rotation, i.e. an onboard estimator's error without its dynamics), position (3) m and velocity (3) m/s
+  (sample-and-hold at `sensors["position_hz"]`), rotor_speed (4) rad/s from the ESCs,
+  reference_position (3), reference_velocity (3), reference_yaw (1): the task's set-point now.
+
+Reward per agent step (suited to recovery training; a spinning vehicle is not penalised for yaw):
+  r = 1 - 0.5 min(|p - p_ref|, 4) - 0.5 (1 - cos tilt) - 0.05 mean(u^2),  and -100 on a crash,
+where tilt is the angle of the thrust axis (body -z) from vertical.
+
+Episode end: terminated on a crash (ground contact faster than 2 m/s or tilted more than 60 deg, or leaving
+the box |north|, |east| <= 100 m, altitude <= 100 m); truncated after `max_episode_seconds`.
+"""
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from .faults import FaultSchedule, parse_faults, resolve
+from .frames import quat_from_euler, rotation_matrix
+from .rotors import RotorSet
+from .sensors import ACCEL_LIMIT, GYRO_LIMIT, QuadrotorSensors, SensorConfig
+from .tasks import make_task
+from .vehicles import GRAVITY, YAW_SIGNS, make_params
+from .wind import DrydenWind
+from .world import PyBulletWorld
+
+SENSOR_KEYS = ("gyro", "accel", "attitude", "position", "velocity", "rotor_speed")
+CRASH_SPEED = 2.0                 # m/s, ground contact faster than this is an impact
+CRASH_TILT = np.deg2rad(60.0)     # rad, ground contact more tilted than this is a crash
+BOUNDS = 100.0                    # m, half-width and ceiling of the flight box
+CRASH_PENALTY = 100.0
+
+
+class QuadrotorEnv(gym.Env):
+    """Quadrotor with motor-level actions; see the module docstring for spaces, reward and termination."""
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 30}
+
+    def __init__(self, vehicle: str = "bebop2", vehicle_overrides: dict | None = None, wind: dict | None = None,
+                 faults=None, task="hover", max_episode_seconds: float = 30.0, physics_hz: float = 500.0,
+                 agent_hz: float = 500.0, sensors: dict | None = None, render_mode: str | None = None):
+        self.params = make_params(vehicle, vehicle_overrides)
+        self.physics_hz, self.agent_hz = _check_rates(physics_hz, agent_hz)
+        self.substeps = int(round(self.physics_hz / self.agent_hz))
+        self.dt = 1.0 / self.physics_hz
+        if not (np.isfinite(max_episode_seconds) and max_episode_seconds > 0):
+            raise ValueError(f"max_episode_seconds: must be a finite number > 0, got {max_episode_seconds!r}")
+        self.max_episode_seconds = float(max_episode_seconds)
+        if render_mode not in (None, *self.metadata["render_modes"]):
+            raise ValueError(f"render_mode: {render_mode!r}; accepted: None, {self.metadata['render_modes']}")
+        self.render_mode = render_mode
+        self.task = make_task(task)
+        self.wind = DrydenWind.from_config(wind, self.dt)
+        self.fault_specs = parse_faults(faults, 4, SENSOR_KEYS)
+        self.rotors = RotorSet.from_params(self.params, YAW_SIGNS)
+        self.sensors = QuadrotorSensors(SensorConfig.from_overrides(sensors), 4, self.params.hover_omega,
+                                        1.0 / self.agent_hz)
+        self.world = PyBulletWorld(self.physics_hz, self.params.mass, self.params.inertia, self.params.body_size,
+                                   gui=render_mode == "human")
+        self._body_drag = np.asarray(self.params.body_drag, dtype=float)
+        self._rot_drag = np.asarray(self.params.rotational_drag, dtype=float)
+        self._gravity = np.array([0.0, 0.0, GRAVITY])
+        self.action_space = spaces.Box(0.0, 1.0, (4,), np.float32)
+        self.observation_space = self._make_observation_space()
+
+    # ----------------------------------------------------------------------------------------- spaces
+    def _make_observation_space(self) -> spaces.Dict:
+        inf = np.inf
+        omega_top = self.params.omega_max * self.params.unloaded_speed_ratio * 1.5
+
+        def box(low, high, n):
+            return spaces.Box(low, high, (n,), np.float64)
+        return spaces.Dict({
+            "gyro": box(-GYRO_LIMIT, GYRO_LIMIT, 3),
+            "accel": box(-ACCEL_LIMIT, ACCEL_LIMIT, 3),
+            "attitude": box(-1.0, 1.0, 4),
+            "position": box(-inf, inf, 3),
+            "velocity": box(-inf, inf, 3),
+            "rotor_speed": box(0.0, omega_top, 4),
+            "reference_position": box(-inf, inf, 3),
+            "reference_velocity": box(-inf, inf, 3),
+            "reference_yaw": box(-np.pi, np.pi, 1),
+        })
+
+    # ----------------------------------------------------------------------------------------- reset
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        rng = self.np_random
+        self.time, self._physics_steps = 0.0, 0
+        self._faults = FaultSchedule(resolve(self.fault_specs, rng, 4), 4)
+        self._has_payload = any(s.kind == "payload" for s in self._faults.specs)
+        self._mass = self.params.mass
+        ref = self.task.reference(0.0)
+        position = ref.position + rng.uniform(-0.05, 0.05, 3)
+        attitude = _small_attitude(rng.uniform(-np.deg2rad(2), np.deg2rad(2), 3), ref.yaw)
+        self.world.reset(position, attitude, np.zeros(3), np.zeros(3))
+        self.rotors.reset(self.params.hover_omega)
+        self._omega_cmd = np.full(4, self.params.hover_omega)
+        self._wind = self.wind.reset(rng)
+        self.sensors.reset(rng)
+        self._crashed, self._termination = False, None
+        self._read_state()
+        self._v_before = self._vel
+        self._specific_force = self._R.T @ -self._gravity
+        obs = self._observe()
+        return obs, self._info()
+
+    # ----------------------------------------------------------------------------------------- step
+    def step(self, action):
+        command = _check_action(action)
+        self._last_command = command
+        self._omega_cmd = self.rotors.command_to_omega(command)
+        for _ in range(self.substeps):
+            self._physics_step()
+        obs = self._observe()
+        self._check_crash()
+        terminated = self._crashed
+        truncated = not terminated and self.time >= self.max_episode_seconds - 1e-9
+        reward = self._reward(command)
+        if self.render_mode == "human":
+            self.render()
+        return obs, reward, terminated, truncated, self._info()
+
+    def _physics_step(self) -> None:
+        t, dt = self.time, self.dt
+        rotors = self.rotors
+        self._faults.rotor_state(t, rotors.effectiveness, rotors.loaded)
+        if self._has_payload:
+            self._update_mass(t)
+        rotors.step(self._omega_cmd, dt)
+        self._wind = self.wind.step()
+        R = self._R
+        air_body = R.T @ (self._vel - self._wind)
+        force, moment = rotors.wrench(self._rates, air_body)
+        force -= self._body_drag * air_body
+        moment -= self._rot_drag * self._rates
+        v_before = self._vel
+        self.world.step(R @ force, R @ moment, self._pos)
+        self.sensors.advance_rotor_phase(rotors.omega, dt)
+        self._physics_steps += 1
+        self.time = self._physics_steps / self.physics_hz  # counted, so it never drifts
+        self._read_state()
+        # An IMU measures the mean specific force over the sample interval: (dv/dt - g) in the body frame.
+        self._specific_force = self._R.T @ ((self._vel - v_before) / dt - self._gravity)
+        self._v_before = v_before
+
+    def _read_state(self) -> None:
+        pos, quat, vel, ang = self.world.state()
+        self._pos, self._quat, self._vel = pos, quat, vel
+        self._R = rotation_matrix(quat)
+        self._rates = self._R.T @ ang
+        if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(vel)) and np.all(np.isfinite(ang))):
+            raise FloatingPointError("physics state became non-finite; please report this as a bug")
+
+    def _update_mass(self, t: float) -> None:
+        mass = self.params.mass + self._faults.added_mass(t)
+        if mass != self._mass:
+            self._mass = mass
+            self.world.set_mass(mass)
+
+    # ----------------------------------------------------------------------------------------- outputs
+    def _observe(self) -> dict:
+        readings = self.sensors.read(self._pos, self._vel, self._quat, self._rates, self._specific_force,
+                                     self.rotors.omega)
+        self._faults.apply_to_sensors(self.time, readings)
+        ref = self.task.reference(self.time)
+        self._reference = ref
+        readings["reference_position"] = ref.position
+        readings["reference_velocity"] = ref.velocity
+        readings["reference_yaw"] = np.array([ref.yaw])
+        return readings
+
+    def _check_crash(self) -> None:
+        altitude = -self._pos[2]
+        if abs(self._pos[0]) > BOUNDS or abs(self._pos[1]) > BOUNDS or altitude > BOUNDS:
+            self._crashed, self._termination = True, "out_of_bounds"
+        elif altitude < 1.5 * self._max_extent() and self.world.touching_ground():
+            impact = max(np.linalg.norm(self._v_before), np.linalg.norm(self._vel))
+            if impact > CRASH_SPEED or self._tilt() > CRASH_TILT:
+                self._crashed, self._termination = True, "ground_impact"
+
+    def _max_extent(self) -> float:
+        return 0.5 * float(np.linalg.norm(self.params.body_size))
+
+    def _tilt(self) -> float:
+        """Angle between the thrust axis (body -z) and up."""
+        return float(np.arccos(np.clip(self._R[2, 2], -1.0, 1.0)))
+
+    def _reward(self, command: np.ndarray) -> float:
+        if self._crashed:
+            return -CRASH_PENALTY
+        error = float(np.linalg.norm(self._pos - self._reference.position))
+        return float(1.0 - 0.5 * min(error, 4.0) - 0.5 * (1.0 - self._R[2, 2]) - 0.05 * float(command @ command) / 4)
+
+    def _info(self) -> dict:
+        """A fresh info dict (DESIGN.md contract)."""
+        rotors, ref = self.rotors, self._reference
+        airspeed_vec = self._vel - self._wind
+        return {
+            "time": self.time,
+            "fault": self._faults.current(self.time),
+            "faults": self._faults.as_dicts(),
+            "truth": {
+                "position": self._pos.copy(),
+                "velocity": self._vel.copy(),
+                "attitude": self._quat.copy(),
+                "body_rates": self._rates.copy(),
+                "wind": self._wind.copy(),
+                "airspeed": float(np.sqrt(airspeed_vec @ airspeed_vec)),
+                "mass": self._mass,
+                "rotor_effectiveness": rotors.effectiveness.copy(),
+                "rotor_speed": rotors.omega.copy(),
+            },
+            "reference": {"position": ref.position.copy(), "velocity": ref.velocity.copy(), "yaw": ref.yaw},
+            "crashed": self._crashed,
+            "termination": self._termination,
+        }
+
+    # ----------------------------------------------------------------------------------------- misc
+    def render(self):
+        if self.render_mode == "rgb_array":
+            return self.world.camera_image(self._pos)
+        return None
+
+    def close(self):
+        if getattr(self, "world", None) is not None:
+            self.world.close()
+            self.world = None
+
+
+def _check_action(action) -> np.ndarray:
+    a = np.asarray(action, dtype=np.float64)
+    if a.shape != (4,):
+        raise ValueError(f"action: expected shape (4,) normalised rotor commands, got shape {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"action: must be finite (no NaN or inf), got {a.tolist()}")
+    return np.clip(a, 0.0, 1.0)
+
+
+def _check_rates(physics_hz, agent_hz):
+    for name, value in (("physics_hz", physics_hz), ("agent_hz", agent_hz)):
+        if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
+            raise ValueError(f"{name}: must be a finite number > 0, got {value!r}")
+    ratio = physics_hz / agent_hz
+    if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+        raise ValueError(f"agent_hz: physics_hz / agent_hz must be a whole number >= 1, got {physics_hz}/{agent_hz}")
+    return float(physics_hz), float(agent_hz)
+
+
+def _small_attitude(roll_pitch_yaw_noise, yaw: float) -> np.ndarray:
+    roll, pitch, dyaw = roll_pitch_yaw_noise
+    return quat_from_euler(roll, pitch, yaw + dyaw)

@@ -1,0 +1,130 @@
+"""Sensor models: what a flight controller reads, never the truth.
+
+- IMU (000 Sec. IV-A, Fig. 5): gyro and accelerometer sampled at the agent rate with white noise, a
+  per-episode constant bias, motor vibration at each rotor's frequency (amplitude ~ omega^2, as from
+  propeller imbalance) and saturation at +-2000 deg/s (MPU-6050, 000 Fig. 5) and +-16 g.
+- ESC rotor speeds with white noise (000 Table I lists them as uncontaminated; a little noise is kept).
+- Attitude: truth perturbed by a small random rotation (an onboard estimator's error; no estimator
+  dynamics are simulated, so faults reach it only through the truth). Documented in the env docstring.
+- Position and velocity (motion capture / GNSS-like): sample-and-hold at `position_hz` with white noise.
+Noise is drawn in blocks from the env's generator (one draw per block, not per step) for speed.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+GYRO_LIMIT = np.deg2rad(2000.0)   # rad/s, MPU-6050 full scale (000 Fig. 5)
+ACCEL_LIMIT = 16.0 * 9.81         # m/s^2, +-16 g full scale
+_BLOCK = 512
+
+
+@dataclass(frozen=True)
+class SensorConfig:
+    """Noise levels (1-sigma per sample) and rates; override with the env's `sensors` kwarg."""
+
+    gyro_noise: float = 0.005           # rad/s; MPU-6050 density 0.005 deg/s/sqrt(Hz) plus airframe noise
+    accel_noise: float = 0.05           # m/s^2; MPU-6050 400 ug/sqrt(Hz) over 250 Hz
+    gyro_bias: float = 0.005            # rad/s, per-episode constant bias sigma
+    accel_bias: float = 0.05            # m/s^2
+    gyro_vibration: float = 0.03        # rad/s amplitude per rotor at hover speed
+    accel_vibration: float = 0.8        # m/s^2 amplitude per rotor at hover speed
+    rotor_speed_noise: float = 1.0      # rad/s
+    attitude_noise: float = np.deg2rad(0.2)  # rad, per axis
+    position_noise: float = 0.01        # m (indoor motion capture as in 000's flights)
+    velocity_noise: float = 0.02        # m/s
+    position_hz: float = 100.0          # Hz, sample-and-hold rate of position and velocity
+
+    @classmethod
+    def from_overrides(cls, overrides: dict | None) -> "SensorConfig":
+        if not overrides:
+            return cls()
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(overrides) - names
+        if unknown:
+            raise ValueError(f"sensors: unknown field(s) {sorted(unknown)}; accepted: {sorted(names)}")
+        for key, value in overrides.items():
+            if not (np.isfinite(value) and value >= 0):
+                raise ValueError(f"sensors[{key!r}]: must be a finite number >= 0, got {value!r}")
+        if overrides.get("position_hz", 1.0) <= 0:
+            raise ValueError("sensors['position_hz']: must be > 0")
+        return cls(**{k: float(v) for k, v in overrides.items()})
+
+
+class QuadrotorSensors:
+    """IMU, ESC, attitude and position/velocity sensors of a quadrotor."""
+
+    #: columns of one noise row: gyro 3, accel 3, attitude 3, position 3, velocity 3, rotor speeds n
+    def __init__(self, config: SensorConfig, n_rotors: int, hover_omega: float, dt: float):
+        self.config = config
+        self.n_rotors = n_rotors
+        self.dt = dt
+        self._omega_ref2 = hover_omega ** 2
+        self._hold_steps = max(1, int(round(1.0 / (config.position_hz * dt))))
+        c = config
+        self._scales = np.concatenate([
+            np.full(3, c.gyro_noise), np.full(3, c.accel_noise), np.full(3, c.attitude_noise / 2),
+            np.full(3, c.position_noise), np.full(3, c.velocity_noise), np.full(n_rotors, c.rotor_speed_noise)])
+
+    def reset(self, rng: np.random.Generator) -> None:
+        c = self.config
+        self._rng = rng
+        self.gyro_bias = rng.normal(0.0, c.gyro_bias, 3) if c.gyro_bias else np.zeros(3)
+        self.accel_bias = rng.normal(0.0, c.accel_bias, 3) if c.accel_bias else np.zeros(3)
+        # Each rotor shakes the airframe along its own direction (fixed per episode).
+        dirs = rng.normal(size=(self.n_rotors, 3))
+        dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+        self._gyro_vib_dirs = dirs * c.gyro_vibration
+        self._accel_vib_dirs = dirs[:, [1, 2, 0]] * c.accel_vibration
+        self._phase = rng.uniform(0.0, 2 * np.pi, self.n_rotors)
+        self._noise = np.empty((0, self._scales.size))
+        self._row = 0
+        self._count = 0
+        self._position = None
+        self._velocity = None
+
+    def advance_rotor_phase(self, omega: np.ndarray, dt: float) -> None:
+        """Integrate the rotor angles (called every physics step, so vibration is not aliased by substeps)."""
+        self._phase = (self._phase + omega * dt) % (2 * np.pi)
+
+    def _next_noise(self) -> np.ndarray:
+        if self._row >= len(self._noise):
+            self._noise = self._rng.standard_normal((_BLOCK, self._scales.size)) * self._scales
+            self._row = 0
+        row = self._noise[self._row]
+        self._row += 1
+        return row
+
+    def read(self, position, velocity, quat, body_rates, specific_force, omega) -> dict:
+        """One sample of every sensor, from the true state (NED / FRD)."""
+        n = self._next_noise()
+        vib = (omega * omega / self._omega_ref2) * np.sin(self._phase)
+        gyro = body_rates + self.gyro_bias + n[0:3] + vib @ self._gyro_vib_dirs
+        accel = specific_force + self.accel_bias + n[3:6] + vib @ self._accel_vib_dirs
+        if self._count % self._hold_steps == 0:
+            self._position = position + n[9:12]
+            self._velocity = velocity + n[12:15]
+        self._count += 1
+        return {
+            "gyro": np.clip(gyro, -GYRO_LIMIT, GYRO_LIMIT),
+            "accel": np.clip(accel, -ACCEL_LIMIT, ACCEL_LIMIT),
+            "attitude": _perturb(quat, n[6:9]),
+            "position": self._position.copy(),
+            "velocity": self._velocity.copy(),
+            "rotor_speed": np.maximum(omega + n[15:], 0.0),
+        }
+
+
+def _perturb(q, half_angles) -> np.ndarray:
+    """q (x) [half_angles, 1], normalised: q rotated by a small body-frame rotation."""
+    x, y, z, w = q
+    a, b, c = half_angles
+    out = np.array((
+        w * a + x + y * c - z * b,
+        w * b - x * c + y + z * a,
+        w * c + x * b - y * a + z,
+        w - x * a - y * b - z * c,
+    ))
+    return out / np.sqrt(out @ out)

@@ -1,0 +1,107 @@
+"""Tasks: the reference a vehicle should follow (position, velocity, yaw in NED) and where it starts.
+
+- hover: hold a set-point (default 5 m above the origin, yaw 0).
+- square: 004 Sec. 5.1: from hover, an 8 m x 8 m square at constant altitude (8 m) flown at `speed`
+  along the path, plus 004's sinusoidal speed excitation
+  v = 0.5 sin(2.51t)cos(3.14t) + 0.5 sin(3.14t)cos(4.19t) + 0.5 sin(4.19t)cos(6.28t),
+  optionally turning the heading by 90 deg at each corner (004's second scenario).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+# 004 Sec. 5.1 excitation as sums of sines: sin(a t) cos(b t) = (sin((a+b)t) + sin((a-b)t)) / 2.
+_EXCITATION_PAIRS = ((2.51, 3.14), (3.14, 4.19), (4.19, 6.28))
+_EXCITATION_FREQS = np.array([f for a, b in _EXCITATION_PAIRS for f in (a + b, a - b)])
+
+
+def excitation_speed(t: float) -> float:
+    """004 Sec. 5.1 speed excitation at time t (m/s)."""
+    return float(0.25 * np.sum(np.sin(_EXCITATION_FREQS * t)))
+
+
+def excitation_distance(t: float) -> float:
+    """Integral of `excitation_speed` from 0 to t (m), in closed form."""
+    return float(0.25 * np.sum((1.0 - np.cos(_EXCITATION_FREQS * t)) / _EXCITATION_FREQS))
+
+
+@dataclass(frozen=True)
+class Reference:
+    position: np.ndarray   # NED m
+    velocity: np.ndarray   # NED m/s
+    yaw: float             # rad
+
+
+@dataclass(frozen=True)
+class HoverTask:
+    """Hold `altitude` m above (north, east)."""
+
+    name = "hover"
+    altitude: float = 5.0
+    north: float = 0.0
+    east: float = 0.0
+    yaw: float = 0.0
+
+    def reference(self, t: float) -> Reference:
+        return Reference(np.array([self.north, self.east, -self.altitude]), np.zeros(3), self.yaw)
+
+
+@dataclass(frozen=True)
+class SquareTask:
+    """004 Sec. 5.1 square path after `hold` s of hover at its first corner."""
+
+    name = "square"
+    side: float = 8.0
+    altitude: float = 8.0
+    speed: float = 1.0
+    hold: float = 2.0
+    excitation: bool = True
+    heading_changes: bool = False
+
+    def _distance(self, t: float):
+        tau = max(t - self.hold, 0.0)
+        s = self.speed * tau
+        v = self.speed if t > self.hold else 0.0
+        if self.excitation and t > self.hold:
+            s += excitation_distance(tau)
+            v += excitation_speed(tau)
+        return max(s, 0.0), v
+
+    def reference(self, t: float) -> Reference:
+        s, v = self._distance(t)
+        leg, along = divmod(s, self.side)
+        leg = int(leg) % 4
+        direction = np.array(((1.0, 0.0), (0.0, 1.0), (-1.0, 0.0), (0.0, -1.0))[leg])
+        corner = np.array(((0.0, 0.0), (self.side, 0.0), (self.side, self.side), (0.0, self.side))[leg])
+        north, east = corner + along * direction
+        yaw = (leg * np.pi / 2) if self.heading_changes else 0.0
+        yaw = (yaw + np.pi) % (2 * np.pi) - np.pi
+        return Reference(np.array([north, east, -self.altitude]), np.array([*(v * direction), 0.0]), yaw)
+
+
+TASKS = {"hover": HoverTask, "square": SquareTask}
+
+
+def make_task(task) -> HoverTask | SquareTask:
+    """A task from its name or a dict {"name": ..., <field>: value}; bad input raises ValueError."""
+    if isinstance(task, (HoverTask, SquareTask)):
+        return task
+    options = {}
+    if isinstance(task, dict):
+        options = dict(task)
+        task = options.pop("name", None)
+    if task not in TASKS:
+        raise ValueError(f"task: unknown task {task!r}; accepted: {sorted(TASKS)} (or a dict with 'name')")
+    cls = TASKS[task]
+    accepted = {f.name for f in fields(cls)}
+    unknown = set(options) - accepted
+    if unknown:
+        raise ValueError(f"task: unknown option(s) {sorted(unknown)} for {task!r}; accepted: {sorted(accepted)}")
+    for key, value in options.items():
+        if not isinstance(value, bool) and not (isinstance(value, (int, float)) and np.isfinite(value)):
+            raise ValueError(f"task[{key!r}]: must be a finite number or a bool, got {value!r}")
+    if options.get("altitude", 1.0) <= 0 or options.get("side", 1.0) <= 0:
+        raise ValueError("task: 'altitude' and 'side' must be > 0")
+    return cls(**options)

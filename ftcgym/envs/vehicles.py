@@ -1,0 +1,135 @@
+"""Quadrotor parameter sets: plain data, every number with its source.
+
+Rotor numbering and geometry follow 000 Fig. 2 / eq. (4): r1 = (h, -b) front-left, r2 = (h, b)
+front-right, r3 = (-h, b) rear-right, r4 = (-h, -b) rear-left, in body FRD. Rotors 1 and 3 turn
+opposite to 2 and 4; the yaw reaction torque signs are (+, -, +, -) as in 004 eq. (7). In code the
+rotors are indexed 0..3 (index 0 is r1).
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import numpy as np
+
+#: yaw reaction-torque sign per rotor (004 eq. 7; DESIGN.md): + means +z (FRD) torque on the body.
+YAW_SIGNS = (1.0, -1.0, 1.0, -1.0)
+
+
+@dataclass(frozen=True)
+class QuadrotorParams:
+    """Physical parameters of an X-configuration quadrotor (SI units)."""
+
+    name: str
+    mass: float                     # kg
+    inertia: tuple                  # (Ixx, Iyy, Izz) kg m^2, body FRD principal axes
+    arm_x: float                    # h: rotor distance along body x, m (000 Fig. 2)
+    arm_y: float                    # b: rotor distance along body y, m (000 Fig. 2)
+    thrust_coefficient: float       # c_T: thrust = c_T * k_i * omega^2, N/(rad/s)^2 (000 eq. 3)
+    torque_coefficient: float       # c_Q: drag torque = c_Q * k_i * omega^2, N m/(rad/s)^2
+    omega_min: float                # rad/s, ESC idle speed (command 0)
+    omega_max: float                # rad/s, speed at command 1
+    motor_time_constant: float      # s, first-order motor lag
+    max_rotor_acceleration: float   # rad/s^2, |d omega/dt| limit
+    propeller_radius: float         # m
+    propeller_inertia: float        # kg m^2 about the spin axis (rotor gyroscopic moments)
+    rotor_drag_coefficient: float   # N s^2/m per rotor: F = -k * omega * v_inplane (001 Sec. 4.3)
+    body_drag: tuple                # (x, y, z) N s/m, linear body drag in FRD (004 eq. 9)
+    rotational_drag: tuple          # (p, q, r) N m s, linear rotational damping (004 eq. 11)
+    unloaded_speed_ratio: float     # steady speed of a motor that lost its propeller / loaded speed
+    unloaded_time_constant: float   # s, motor lag without the propeller's inertia
+    body_size: tuple = (0.2, 0.2, 0.05)  # m, collision box (x, y, z)
+    sources: dict = field(default_factory=dict, compare=False, repr=False)
+
+    @property
+    def rotor_positions(self) -> np.ndarray:
+        """Rotor positions in body FRD, rows r1..r4 (000 eq. 4)."""
+        h, b = self.arm_x, self.arm_y
+        return np.array([[h, -b, 0.0], [h, b, 0.0], [-h, b, 0.0], [-h, -b, 0.0]])
+
+    @property
+    def hover_omega(self) -> float:
+        """Rotor speed at which four rotors carry the weight: sqrt(m g / (4 c_T))."""
+        return float(np.sqrt(self.mass * GRAVITY / (4.0 * self.thrust_coefficient)))
+
+    @property
+    def effectiveness_G(self) -> np.ndarray:
+        """000 eq. (8)-(9): G = [c_T b / Ix, c_T h / Iy, c_T / m]."""
+        ixx, iyy, _ = self.inertia
+        c = self.thrust_coefficient
+        return np.array([c * self.arm_y / ixx, c * self.arm_x / iyy, c / self.mass])
+
+
+GRAVITY = 9.81  # m/s^2
+
+_SUN = "SihaoSun/INDI_Quadrotor_FTC Bebop2Model (VEHICLES.md)"
+
+BEBOP2 = QuadrotorParams(
+    name="bebop2",
+    mass=0.374,                                   # _SUN
+    inertia=(1.448e-3, 1.255e-3, 2.520e-3),       # _SUN (Ixz 2.3e-5 neglected: diagonal as 000 eq. 8)
+    arm_x=0.0875,                                 # h, _SUN; 000 Fig. 2
+    arm_y=0.115,                                  # b, _SUN; 000 Fig. 2
+    thrust_coefficient=1.9035e-6,                 # _SUN
+    torque_coefficient=1.9203e-8,                 # _SUN (c_Q / c_T = 0.0101 m)
+    omega_min=314.0,                              # 000 Sec. IV-A: minimum ~3000 RPM
+    omega_max=1200.0,                             # _SUN: rotor speed up to 1200 rad/s (~12000 RPM, 000 Sec. IV-A)
+    motor_time_constant=1.0 / 30.0,               # _SUN
+    max_rotor_acceleration=5.0e4,                 # _SUN
+    propeller_radius=0.075,                       # _SUN
+    propeller_inertia=8.0e-6,                     # _SUN, spin axis
+    rotor_drag_coefficient=1.0e-5,                # assumed: 001 Sec. 4.3 form; ~0.029 N/(m/s) for 4 rotors at hover
+    body_drag=(0.02, 0.02, 0.04),                 # assumed, order of 004 eq. (9) lambda
+    rotational_drag=(5.0e-5, 5.0e-5, 1.0e-4),     # _SUN rotational drag (applied linear in rate)
+    unloaded_speed_ratio=1.3,                     # assumed: 000 Fig. 8 shows the unloaded motor speeding up
+    unloaded_time_constant=0.01,                  # assumed: no propeller inertia, motor spins up fast
+    body_size=(0.33, 0.38, 0.09),                 # Parrot Bebop 2 public spec (328 x 382 x 89 mm)
+    sources={"general": _SUN, "G": "000 Table II: G_p = G_q = 100e-6, G_az = 5e-6 (same order, see effectiveness_G)"},
+)
+
+MUELLER2014 = QuadrotorParams(
+    name="mueller2014",
+    mass=0.5,                                     # 001 Part II App. B "mueller"
+    inertia=(3.2e-3, 3.2e-3, 5.5e-3),             # 001 App. B "mueller": I_xx_T = I_yy, I_zz_T
+    # Mueller's rotors sit on the body axes at l = 0.17 m ("+"). We keep 000's X numbering by rotating
+    # the body axes 45 deg: h = b = l / sqrt(2). With Ixx = Iyy the vehicle is physically the same.
+    arm_x=0.17 / np.sqrt(2.0),
+    arm_y=0.17 / np.sqrt(2.0),
+    thrust_coefficient=6.41e-6,                   # 001 App. B "mueller" k_f
+    torque_coefficient=6.41e-6 * 1.69e-2,         # k_t = 1.69e-2 m (torque/thrust), 001 App. B
+    omega_min=100.0,                              # assumed idle
+    omega_max=700.0,                              # assumed: 3.1 N per rotor, thrust-to-weight 2.6
+    motor_time_constant=0.015,                    # assumed, typical small brushless motor
+    max_rotor_acceleration=5.0e4,                 # assumed, as bebop2
+    propeller_radius=0.1,                         # assumed
+    propeller_inertia=1.5e-5,                     # 001 App. B (without its 1e-6 unit slip, VEHICLES.md)
+    rotor_drag_coefficient=1.0e-5,                # assumed, as bebop2
+    body_drag=(0.03, 0.03, 0.05),                 # assumed
+    rotational_drag=(1.0e-4, 1.0e-4, 2.75e-3),    # yaw: gamma_1_z = 2.75e-3 N m s (001 App. B); roll/pitch assumed
+    unloaded_speed_ratio=1.3,                     # assumed, as bebop2
+    unloaded_time_constant=0.008,                 # assumed
+    body_size=(0.35, 0.35, 0.08),                 # assumed from arm length
+    sources={"general": "001 Part II App. B 'mueller' case; unlisted numbers assumed"},
+)
+
+VEHICLES = {p.name: p for p in (BEBOP2, MUELLER2014)}
+
+
+def make_params(vehicle: str, overrides: dict | None = None) -> QuadrotorParams:
+    """The named parameter set with `overrides` applied; unknown names raise ValueError."""
+    if vehicle not in VEHICLES:
+        raise ValueError(f"vehicle: unknown parameter set {vehicle!r}; accepted: {sorted(VEHICLES)}")
+    params = VEHICLES[vehicle]
+    if not overrides:
+        return params
+    fields = {f.name for f in dataclasses.fields(QuadrotorParams)} - {"name", "sources"}
+    unknown = set(overrides) - fields
+    if unknown:
+        raise ValueError(f"vehicle_overrides: unknown field(s) {sorted(unknown)}; accepted: {sorted(fields)}")
+    clean = {}
+    for key, value in overrides.items():
+        arr = np.asarray(value, dtype=float)
+        if not np.all(np.isfinite(arr)):
+            raise ValueError(f"vehicle_overrides[{key!r}]: must be finite, got {value!r}")
+        clean[key] = tuple(arr.tolist()) if arr.ndim else float(arr)
+    return dataclasses.replace(params, **clean)

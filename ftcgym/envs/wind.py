@@ -1,0 +1,254 @@
+"""Constant mean wind plus Dryden turbulence (004 eq. (13)-(14), Sec. 5.1).
+
+004 eq. (13): V_w = V_w^l + V_w^h, a constant low-frequency wind plus turbulence. The turbulence
+components are white noise through the Dryden filters of 004 eq. (14a-c):
+
+    H_u(s) = sigma_u sqrt(2 V_a / L_u) / (s + V_a/L_u)
+    H_v(s) = sigma_v sqrt(3 V_a / L_v) (s + V_a/(sqrt(3) L_v)) / (s + V_a/L_v)^2   (H_w alike)
+
+driven by unit-intensity white noise, so each output has standard deviation sigma exactly.
+
+Implementation: the three filters form one 5-state LTI system (u: 1 state, v: 2, w: 2),
+x' = A x + B n, y = C x. It is discretised exactly (Van Loan's method: no Euler error, so the
+statistics do not depend on dt) into x[k+1] = Ad x[k] + w[k], w ~ N(0, Qd), and the state starts
+from its stationary covariance, so there is no start-up transient. The filter gains live in C and
+the noise enters with unit gain, so Qd is always positive definite and a zero sigma gives an
+exactly zero component.
+
+Frames: NED world (z down), m/s. 004 gives u, v, w along the vehicle axes; we instead apply them
+along NED axes aligned with the mean wind: u along the mean wind's horizontal direction (north when
+the mean wind is ~horizontal-calm), v horizontal and 90 deg clockwise from u seen from above (east
+when u is north), w down. This keeps the wind a function of time only, independent of attitude.
+
+V_a is the reference airspeed in the filters. Default: max(|mean wind|, 1 m/s): a hovering vehicle's
+airspeed is the wind speed, and the 1 m/s floor keeps the time constants L/V_a finite.
+
+Randomness: only from the numpy Generator passed to reset(). Turbulence draws Gaussian noise in
+blocks of _BLOCK steps (bit-identical sequences for a given seed); a calm wind (all sigmas zero)
+draws nothing. Give the wind its own child generator if other components share a seed.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import scipy.linalg
+
+# 004 Sec. 5.1 ("low altitude and light turbulence", h = 8 m). "moderate" and "severe" are our
+# choice: light sigmas times 2 and 4, lengths kept (MIL-F-8785C's low-altitude model scales all
+# sigmas with the 20-ft wind, 15/30/45 kt for light/moderate/severe, i.e. 1:2:3, so our "severe"
+# is somewhat harsher than that standard's).
+_LIGHT_SIGMAS = (1.1006, 0.6576, 0.4168)
+_LENGTHS = (65.8567, 19.2356, 2.8)
+TURBULENCE_PRESETS: dict[str, dict] = {
+    "none": {"sigmas": (0.0, 0.0, 0.0), "lengths": _LENGTHS},
+    "light": {"sigmas": _LIGHT_SIGMAS, "lengths": _LENGTHS},
+    "moderate": {"sigmas": tuple(2.0 * s for s in _LIGHT_SIGMAS), "lengths": _LENGTHS},
+    "severe": {"sigmas": tuple(4.0 * s for s in _LIGHT_SIGMAS), "lengths": _LENGTHS},
+}
+
+CONFIG_KEYS = ("mean", "turbulence", "airspeed")
+_TURBULENCE_KEYS = ("sigmas", "lengths")
+_BLOCK = 1024          # noise steps drawn per refill: amortises the rng/matmul call overhead
+_CALM_HORIZONTAL = 1e-9  # m/s; below this the mean wind has no direction and u points north
+
+
+def _vector3(value, field: str) -> np.ndarray:
+    try:
+        arr = np.array(value, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise ValueError(f"wind {field}: expected 3 finite numbers, got {value!r}") from None
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        raise ValueError(f"wind {field}: expected 3 finite numbers, got {value!r}")
+    return arr
+
+
+def _positive(value, field: str) -> float:
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"wind {field}: expected a finite number > 0, got {value!r}") from None
+    if not (math.isfinite(number) and number > 0.0):
+        raise ValueError(f"wind {field}: expected a finite number > 0, got {value!r}")
+    return number
+
+
+def _parse_turbulence(turbulence) -> tuple[np.ndarray, np.ndarray]:
+    """Preset name or {"sigmas", "lengths"} dict -> validated (sigmas, lengths)."""
+    accepted = f"a preset name {sorted(TURBULENCE_PRESETS)} or a dict with keys {list(_TURBULENCE_KEYS)}"
+    if isinstance(turbulence, str):
+        if turbulence not in TURBULENCE_PRESETS:
+            raise ValueError(f"wind turbulence: unknown preset {turbulence!r}; accepted: {accepted}")
+        turbulence = TURBULENCE_PRESETS[turbulence]
+    if not isinstance(turbulence, dict) or set(turbulence) != set(_TURBULENCE_KEYS):
+        raise ValueError(f"wind turbulence: got {turbulence!r}; accepted: {accepted}")
+    sigmas = _vector3(turbulence["sigmas"], "sigmas")
+    lengths = _vector3(turbulence["lengths"], "lengths")
+    if np.any(sigmas < 0.0):
+        raise ValueError(f"wind sigmas: must be >= 0 m/s, got {sigmas.tolist()}")
+    if np.any(lengths <= 0.0):
+        raise ValueError(f"wind lengths: must be > 0 m, got {lengths.tolist()}")
+    return sigmas, lengths
+
+
+def dryden_state_space(sigmas, lengths, airspeed: float):
+    """Continuous 5-state (A, B, C) of 004 eq. (14a-c), unit-intensity noise input per channel.
+
+    Second-order filters in controllable canonical form: k (s + b) / (s + a)^2 with
+    A = [[0, 1], [-a^2, -2a]], B = [0, 1]^T, C = k [b, 1].
+    """
+    su, sv, sw = sigmas
+    a_u, a_v, a_w = (airspeed / length for length in lengths)
+
+    def second_order(sigma, a):
+        gain = sigma * math.sqrt(3.0 * a)
+        return (np.array([[0.0, 1.0], [-a * a, -2.0 * a]]), np.array([[0.0], [1.0]]),
+                gain * np.array([[a / math.sqrt(3.0), 1.0]]))
+
+    blocks = [(np.array([[-a_u]]), np.array([[1.0]]), np.array([[su * math.sqrt(2.0 * a_u)]])),
+              second_order(sv, a_v), second_order(sw, a_w)]
+    a_mat, b_mat, c_mat = (scipy.linalg.block_diag(*parts) for parts in zip(*blocks))
+    return a_mat, b_mat, c_mat
+
+
+def van_loan(a_mat: np.ndarray, b_mat: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact zero-order discretisation of x' = A x + B n (n unit-intensity white): (Ad, Qd)."""
+    n = a_mat.shape[0]
+    block = np.zeros((2 * n, 2 * n))
+    block[:n, :n] = -a_mat
+    block[:n, n:] = b_mat @ b_mat.T
+    block[n:, n:] = a_mat.T
+    expo = scipy.linalg.expm(block * dt)
+    ad = expo[n:, n:].T
+    qd = ad @ expo[:n, n:]
+    return ad, 0.5 * (qd + qd.T)
+
+
+def _psd_factor(cov: np.ndarray) -> np.ndarray:
+    """F with F F^T = cov; Cholesky, or eigen-decomposition if rounding made cov semi-definite."""
+    try:
+        return np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        vals, vecs = np.linalg.eigh(cov)
+        return vecs * np.sqrt(np.clip(vals, 0.0, None))
+
+
+def turbulence_axes(mean: np.ndarray) -> np.ndarray:
+    """3x3 matrix whose columns are the NED directions of the u, v, w turbulence components."""
+    horizontal = math.hypot(mean[0], mean[1])
+    if horizontal < _CALM_HORIZONTAL:
+        c, s = 1.0, 0.0
+    else:
+        c, s = mean[0] / horizontal, mean[1] / horizontal
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _readonly(arr: np.ndarray) -> np.ndarray:
+    arr = np.array(arr, dtype=np.float64)
+    arr.flags.writeable = False
+    return arr
+
+
+class DrydenWind:
+    """Wind velocity (NED, m/s) = constant mean + Dryden turbulence, advanced by step()."""
+
+    def __init__(self, dt: float, mean=(0.0, 0.0, 0.0), turbulence="none", airspeed=None):
+        self._dt = _positive(dt, "dt")
+        self._mean = _readonly(_vector3(mean, "mean"))
+        sigmas, lengths = _parse_turbulence(turbulence)
+        self._sigmas, self._lengths = _readonly(sigmas), _readonly(lengths)
+        if airspeed is None:
+            airspeed = max(float(np.linalg.norm(self._mean)), 1.0)
+        self._airspeed = _positive(airspeed, "airspeed")
+        self._calm = not np.any(self._sigmas > 0.0)
+        self._rng = None
+        self._velocity = self._mean.copy()
+        if not self._calm:
+            self._build_filter()
+
+    def _build_filter(self) -> None:
+        a_mat, b_mat, c_mat = dryden_state_space(self._sigmas, self._lengths, self._airspeed)
+        ad, qd = van_loan(a_mat, b_mat, self._dt)
+        # Stationary covariance P = Ad P Ad^T + Qd: the initial state is drawn from it.
+        stationary = scipy.linalg.solve_discrete_lyapunov(ad, qd)
+        self._init_factor = _psd_factor(0.5 * (stationary + stationary.T))
+        self._noise_factor_t = _psd_factor(qd).T
+        out = turbulence_axes(self._mean) @ c_mat              # state -> NED wind (3x5)
+        # One matvec per step: z = [x'; y'] = [Ad; out Ad] x + [w; out w + mean].
+        self._transition = np.vstack([ad, out @ ad])
+        self._out = out
+        self._state = np.zeros(5)
+        self._noise = np.empty((0, 8))
+        self._index = 0
+
+    @classmethod
+    def from_config(cls, config: dict | None, dt: float) -> "DrydenWind":
+        """Build from the env's `wind` kwarg: None/{} -> calm; keys "mean", "turbulence", "airspeed"."""
+        if config is None:
+            config = {}
+        if not isinstance(config, dict):
+            raise ValueError(f"wind config: expected a dict with keys {list(CONFIG_KEYS)} or None, got {config!r}")
+        unknown = sorted(set(config) - set(CONFIG_KEYS), key=str)
+        if unknown:
+            raise ValueError(f"wind config: unknown key(s) {unknown}; accepted keys: {list(CONFIG_KEYS)}")
+        return cls(dt, **config)
+
+    def reset(self, rng: np.random.Generator) -> np.ndarray:
+        """Seed the turbulence from its stationary distribution; return the current wind (3,)."""
+        if not isinstance(rng, np.random.Generator):
+            raise TypeError(f"wind reset: rng must be a numpy.random.Generator, got {type(rng).__name__}")
+        self._rng = rng
+        if self._calm:
+            self._velocity = self._mean.copy()
+            return self._velocity.copy()
+        self._state = self._init_factor @ rng.standard_normal(5)
+        self._velocity = self._out @ self._state + self._mean
+        self._noise = np.empty((0, 8))  # discard noise drawn before this reset
+        self._index = 0
+        return self._velocity.copy()
+
+    def _refill(self) -> None:
+        """Draw _BLOCK steps of process noise, pre-mapped to [w; out w + mean] rows."""
+        noise = self._rng.standard_normal((_BLOCK, 5)) @ self._noise_factor_t
+        self._noise = np.hstack([noise, noise @ self._out.T + self._mean])
+        self._index = 0
+
+    def step(self) -> np.ndarray:
+        """Advance by dt; return the wind velocity (3,) NED m/s as a new array."""
+        if self._rng is None:
+            raise RuntimeError("DrydenWind.step() called before reset(rng)")
+        if self._calm:
+            return self._mean.copy()
+        if self._index == len(self._noise):
+            self._refill()
+        z = self._transition @ self._state
+        z += self._noise[self._index]
+        self._index += 1
+        self._state = z[:5]
+        self._velocity = z[5:]
+        return self._velocity.copy()  # the caller may modify it freely
+
+    @property
+    def velocity(self) -> np.ndarray:
+        """Current wind (3,) NED m/s (a copy)."""
+        return np.array(self._velocity)
+
+    @property
+    def mean(self) -> np.ndarray:
+        return self._mean
+
+    @property
+    def sigmas(self) -> np.ndarray:
+        return self._sigmas
+
+    @property
+    def lengths(self) -> np.ndarray:
+        return self._lengths
+
+    @property
+    def airspeed(self) -> float:
+        return self._airspeed
+
+    @property
+    def dt(self) -> float:
+        return self._dt

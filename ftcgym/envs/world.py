@@ -1,0 +1,84 @@
+"""The PyBullet world of one vehicle: a client, the ground, one rigid body, saved-state resets.
+
+Bodies are built from the parameter set (box collision shape, mass, principal inertia), not URDF tags,
+so every number stays visible in `vehicles.py`. All inputs and outputs are NED / FRD (see `frames`).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pybullet as p
+
+from .frames import quat_from_ned, quat_to_ned, rotation_matrix, vec_to_ned
+
+GRAVITY = 9.81
+
+
+class PyBulletWorld:
+    """One PyBullet client stepping one rigid body at a fixed rate."""
+
+    def __init__(self, physics_hz: float, mass: float, inertia, body_size, gui: bool = False):
+        self.client = p.connect(p.GUI if gui else p.DIRECT)
+        c = self.client
+        p.setGravity(0.0, 0.0, -GRAVITY, physicsClientId=c)
+        p.setTimeStep(1.0 / physics_hz, physicsClientId=c)
+        ground = p.createCollisionShape(p.GEOM_PLANE, physicsClientId=c)
+        self.ground = p.createMultiBody(0.0, ground, physicsClientId=c)
+        half = [s / 2 for s in body_size]
+        shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=c)
+        visual = p.createVisualShape(p.GEOM_BOX, halfExtents=half, rgbaColor=[0.2, 0.3, 0.8, 1], physicsClientId=c)
+        self.body = p.createMultiBody(mass, shape, visual, basePosition=[0, 0, 1], physicsClientId=c)
+        # Aerodynamic damping is modelled explicitly; Bullet's default damping would add an unmodelled drag.
+        p.changeDynamics(self.body, -1, localInertiaDiagonal=list(inertia), linearDamping=0.0,
+                         angularDamping=0.0, lateralFriction=0.8, restitution=0.0, physicsClientId=c)
+        self.mass = mass
+        self.half_height = half[2]
+        self._saved = p.saveState(physicsClientId=c)
+
+    def reset(self, position, quat, velocity, body_rates) -> None:
+        """Restore the saved world (contacts, solver caches) and place the body: cheap, no rebuild."""
+        c = self.client
+        p.restoreState(self._saved, physicsClientId=c)
+        self.set_mass(self.mass)
+        p.resetBasePositionAndOrientation(self.body, vec_to_ned(position).tolist(), quat_from_ned(quat),
+                                          physicsClientId=c)
+        rates_world = rotation_matrix(quat) @ np.asarray(body_rates, dtype=float)
+        p.resetBaseVelocity(self.body, vec_to_ned(velocity).tolist(), vec_to_ned(rates_world).tolist(),
+                            physicsClientId=c)
+
+    def set_mass(self, mass: float) -> None:
+        p.changeDynamics(self.body, -1, mass=mass, physicsClientId=self.client)
+
+    def state(self):
+        """Position (NED), quaternion (FRD->NED, x y z w), velocity (NED), angular velocity (NED)."""
+        c = self.client
+        pos, orn = p.getBasePositionAndOrientation(self.body, physicsClientId=c)
+        vel, ang = p.getBaseVelocity(self.body, physicsClientId=c)
+        return vec_to_ned(pos), quat_to_ned(orn), vec_to_ned(vel), vec_to_ned(ang)
+
+    def step(self, force_ned, torque_ned, position_ned) -> None:
+        """Apply a force at the centre of mass and a torque (world NED), then advance one physics step."""
+        c = self.client
+        p.applyExternalForce(self.body, -1, (force_ned[0], -force_ned[1], -force_ned[2]),
+                             (position_ned[0], -position_ned[1], -position_ned[2]), p.WORLD_FRAME, physicsClientId=c)
+        p.applyExternalTorque(self.body, -1, (torque_ned[0], -torque_ned[1], -torque_ned[2]), p.WORLD_FRAME,
+                              physicsClientId=c)
+        p.stepSimulation(physicsClientId=c)
+
+    def touching_ground(self) -> bool:
+        return bool(p.getContactPoints(self.body, self.ground, physicsClientId=self.client))
+
+    def camera_image(self, target_ned, width: int = 480, height: int = 360) -> np.ndarray:
+        """An RGB image from a chase camera looking at `target_ned` (TinyRenderer, works headless)."""
+        c = self.client
+        target = [target_ned[0], -target_ned[1], -target_ned[2]]
+        view = p.computeViewMatrixFromYawPitchRoll(target, 3.0, 45.0, -25.0, 0.0, 2, physicsClientId=c)
+        proj = p.computeProjectionMatrixFOV(60.0, width / height, 0.05, 100.0, physicsClientId=c)
+        _, _, rgba, _, _ = p.getCameraImage(width, height, view, proj, renderer=p.ER_TINY_RENDERER,
+                                            physicsClientId=c)
+        return np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[:, :, :3]
+
+    def close(self) -> None:
+        if self.client is not None and p.isConnected(self.client):
+            p.disconnect(self.client)
+        self.client = None
+
