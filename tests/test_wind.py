@@ -10,9 +10,9 @@ LIGHT_SIGMAS = np.array([1.1006, 0.6576, 0.4168])
 LIGHT_LENGTHS = np.array([65.8567, 19.2356, 2.8])
 
 # Long sample: dt is arbitrary since the discretisation is exact; 0.04 s keeps w's L/V = 0.28 s at
-# 7 samples. T = 16,000 s is ~2,400 u correlation times; across seeds the estimators below spread
-# (1 sd) by ~1% (std), ~2.5% (u correlation time), ~0.008 (v, w autocorrelation), so the
-# tolerances are >= 4 sd wide.
+# 7 samples. T = 16,000 s is ~2,400 u correlation times; over 30 seeds the estimators below spread
+# (1 sd) by 1.5% (u std), 4% (u correlation time), 0.008 (v autocorrelation), less for v, w std and
+# w autocorrelation, so every tolerance is >= 5 sd wide.
 DT, AIRSPEED, STEPS = 0.04, 10.0, 400_000
 
 

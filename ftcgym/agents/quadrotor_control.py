@@ -27,7 +27,8 @@ class ControllerGains:
     integral_limit: float = 2.0             # m/s^2, anti-windup on the integral's acceleration
     attitude: tuple = (7.0, 7.0, 2.5)       # 1/s, rate command per rad of attitude error
     rate: tuple = (18.0, 18.0, 8.0)         # 1/s, angular acceleration per rad/s of rate error
-    rate_integral: tuple = (4.0, 4.0, 1.0)
+    rate_integral: tuple = (60.0, 60.0, 10.0)  # 1/s^2, integral of rate error -> angular acceleration
+    rate_integral_share: float = 0.4         # integral authority as a share of the maximum control torque
     max_tilt_deg: float = 35.0
     max_rate: tuple = (6.0, 6.0, 3.0)       # rad/s
     gyro_cutoff_hz: float = 60.0            # first-order low-pass on the gyro against motor vibration
@@ -47,7 +48,13 @@ class NominalController:
         self._max_horizontal = GRAVITY * np.tan(np.deg2rad(g.max_tilt_deg))
         self._inertia = np.asarray(params.inertia, dtype=float)
         self._gyro_alpha = 1.0 - np.exp(-2 * np.pi * g.gyro_cutoff_hz * self.dt)
-        self._mixer_inverse = np.linalg.inv(allocation_matrix(params))
+        allocation = allocation_matrix(params)
+        self._mixer_inverse = np.linalg.inv(allocation)
+        # Largest torque about each axis with rotors between idle and max: the integral may use a share of it,
+        # enough to trim out a partial loss of effectiveness (002 Sec. 5.2) without winding up.
+        span = params.omega_max ** 2 - params.omega_min ** 2
+        max_torque = 0.5 * np.abs(allocation[1:]).sum(axis=1) * span
+        self._alpha_integral_limit = g.rate_integral_share * max_torque / self._inertia
         self._w2_min, self._w2_max = params.omega_min ** 2, params.omega_max ** 2
         self.thrust_axis_reference = UP.copy()
         self.reset()
@@ -96,8 +103,9 @@ class NominalController:
             self._gyro = np.asarray(gyro, dtype=float).copy()
         self._gyro += self._gyro_alpha * (gyro - self._gyro)
         error = rates_cmd - self._gyro
-        self._rate_integral = np.clip(self._rate_integral + error * self.dt, -0.5, 0.5)
-        alpha = self._krate * error + self._krate_i * self._rate_integral
+        limit = self._alpha_integral_limit
+        self._rate_integral = np.clip(self._rate_integral + self._krate_i * error * self.dt, -limit, limit)
+        alpha = self._krate * error + self._rate_integral
         I, w = self._inertia, self._gyro
         return I * alpha + np.cross(w, I * w)
 

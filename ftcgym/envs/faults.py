@@ -172,6 +172,9 @@ class FaultSchedule:
         self._payload = [s for s in self.specs if s.kind == "payload"]
         self._sensor = [s for s in self.specs if s.kind in SENSOR_KINDS]
         self._stuck: dict[int, np.ndarray] = {}
+        self._dicts = [s.to_dict() for s in self.specs]
+        self._onsets = [s.time for s in self.specs]
+        self._current_start, self._current_until = np.inf, -np.inf  # the cached info["fault"] holds in between
 
     def rotor_state(self, t: float, effectiveness: np.ndarray, loaded: np.ndarray) -> None:
         """Write the effectiveness and propeller presence at time t into the given arrays."""
@@ -211,7 +214,15 @@ class FaultSchedule:
         return readings
 
     def current(self, t: float) -> dict:
-        """info["fault"]: the latest fault in force at t, else the next scheduled one (inactive)."""
+        """info["fault"]: the latest fault in force at t, else the next scheduled one (inactive); a fresh dict."""
+        if not self._current_start <= t < self._current_until:
+            n_active = sum(1 for onset in self._onsets if onset <= t)
+            self._current_start = self._onsets[n_active - 1] if n_active else -np.inf
+            self._current_until = self._onsets[n_active] if n_active < len(self._onsets) else np.inf
+            self._current = self._describe(t)
+        return dict(self._current)
+
+    def _describe(self, t: float) -> dict:
         active = [s for s in self.specs if s.time <= t]
         if active:
             s = active[-1]
@@ -224,7 +235,8 @@ class FaultSchedule:
         return {"active": False, "kind": None, "target": None, "onset_time": None, "magnitude": None}
 
     def as_dicts(self) -> list[dict]:
-        return [s.to_dict() for s in self.specs]
+        """info["faults"]: the resolved schedule (fresh dicts)."""
+        return [dict(d) for d in self._dicts]
 
 
 def _public(value):

@@ -19,12 +19,14 @@ the box |north|, |east| <= 100 m, altitude <= 100 m); truncated after `max_episo
 """
 from __future__ import annotations
 
+import math
+
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
 from .faults import FaultSchedule, parse_faults, resolve
-from .frames import quat_from_euler, rotation_matrix
+from .frames import quat_from_euler
 from .rotors import RotorSet
 from .sensors import ACCEL_LIMIT, GYRO_LIMIT, QuadrotorSensors, SensorConfig
 from .tasks import make_task
@@ -37,6 +39,7 @@ CRASH_SPEED = 2.0                 # m/s, ground contact faster than this is an i
 CRASH_TILT = np.deg2rad(60.0)     # rad, ground contact more tilted than this is a crash
 BOUNDS = 100.0                    # m, half-width and ceiling of the flight box
 CRASH_PENALTY = 100.0
+MAX_SPEED = 100.0                 # m/s, observation bound on velocities (far above any multirotor's)
 
 
 class QuadrotorEnv(gym.Env):
@@ -73,7 +76,7 @@ class QuadrotorEnv(gym.Env):
 
     # ----------------------------------------------------------------------------------------- spaces
     def _make_observation_space(self) -> spaces.Dict:
-        inf = np.inf
+        far, fast = 2.0 * BOUNDS, MAX_SPEED  # the crash box bounds position; speed is bounded physically
         omega_top = self.params.omega_max * self.params.unloaded_speed_ratio * 1.5
 
         def box(low, high, n):
@@ -82,11 +85,11 @@ class QuadrotorEnv(gym.Env):
             "gyro": box(-GYRO_LIMIT, GYRO_LIMIT, 3),
             "accel": box(-ACCEL_LIMIT, ACCEL_LIMIT, 3),
             "attitude": box(-1.0, 1.0, 4),
-            "position": box(-inf, inf, 3),
-            "velocity": box(-inf, inf, 3),
+            "position": box(-far, far, 3),
+            "velocity": box(-fast, fast, 3),
             "rotor_speed": box(0.0, omega_top, 4),
-            "reference_position": box(-inf, inf, 3),
-            "reference_velocity": box(-inf, inf, 3),
+            "reference_position": box(-far, far, 3),
+            "reference_velocity": box(-fast, fast, 3),
             "reference_yaw": box(-np.pi, np.pi, 1),
         })
 
@@ -103,6 +106,7 @@ class QuadrotorEnv(gym.Env):
         attitude = _small_attitude(rng.uniform(-np.deg2rad(2), np.deg2rad(2), 3), ref.yaw)
         self.world.reset(position, attitude, np.zeros(3), np.zeros(3))
         self.rotors.reset(self.params.hover_omega)
+        self._apply_faults()
         self._omega_cmd = np.full(4, self.params.hover_omega)
         self._wind = self.wind.reset(rng)
         self.sensors.reset(rng)
@@ -132,9 +136,6 @@ class QuadrotorEnv(gym.Env):
     def _physics_step(self) -> None:
         t, dt = self.time, self.dt
         rotors = self.rotors
-        self._faults.rotor_state(t, rotors.effectiveness, rotors.loaded)
-        if self._has_payload:
-            self._update_mass(t)
         rotors.step(self._omega_cmd, dt)
         self._wind = self.wind.step()
         R = self._R
@@ -147,18 +148,21 @@ class QuadrotorEnv(gym.Env):
         self.sensors.advance_rotor_phase(rotors.omega, dt)
         self._physics_steps += 1
         self.time = self._physics_steps / self.physics_hz  # counted, so it never drifts
+        self._apply_faults()
         self._read_state()
         # An IMU measures the mean specific force over the sample interval: (dv/dt - g) in the body frame.
         self._specific_force = self._R.T @ ((self._vel - v_before) / dt - self._gravity)
         self._v_before = v_before
 
     def _read_state(self) -> None:
-        pos, quat, vel, ang = self.world.state()
-        self._pos, self._quat, self._vel = pos, quat, vel
-        self._R = rotation_matrix(quat)
+        self._pos, self._quat, self._R, self._vel, ang = self.world.state()
         self._rates = self._R.T @ ang
-        if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(vel)) and np.all(np.isfinite(ang))):
-            raise FloatingPointError("physics state became non-finite; please report this as a bug")
+
+    def _apply_faults(self) -> None:
+        """Set the rotor and mass faults in force from `self.time` on (so info at t shows what acts next)."""
+        self._faults.rotor_state(self.time, self.rotors.effectiveness, self.rotors.loaded)
+        if self._has_payload:
+            self._update_mass(self.time)
 
     def _update_mass(self, t: float) -> None:
         mass = self.params.mass + self._faults.added_mass(t)
@@ -183,7 +187,7 @@ class QuadrotorEnv(gym.Env):
         if abs(self._pos[0]) > BOUNDS or abs(self._pos[1]) > BOUNDS or altitude > BOUNDS:
             self._crashed, self._termination = True, "out_of_bounds"
         elif altitude < 1.5 * self._max_extent() and self.world.touching_ground():
-            impact = max(np.linalg.norm(self._v_before), np.linalg.norm(self._vel))
+            impact = math.sqrt(max(self._v_before @ self._v_before, self._vel @ self._vel))
             if impact > CRASH_SPEED or self._tilt() > CRASH_TILT:
                 self._crashed, self._termination = True, "ground_impact"
 
@@ -197,7 +201,8 @@ class QuadrotorEnv(gym.Env):
     def _reward(self, command: np.ndarray) -> float:
         if self._crashed:
             return -CRASH_PENALTY
-        error = float(np.linalg.norm(self._pos - self._reference.position))
+        e = self._pos - self._reference.position
+        error = math.sqrt(e @ e)
         return float(1.0 - 0.5 * min(error, 4.0) - 0.5 * (1.0 - self._R[2, 2]) - 0.05 * float(command @ command) / 4)
 
     def _info(self) -> dict:
@@ -240,9 +245,9 @@ def _check_action(action) -> np.ndarray:
     a = np.asarray(action, dtype=np.float64)
     if a.shape != (4,):
         raise ValueError(f"action: expected shape (4,) normalised rotor commands, got shape {a.shape}")
-    if not np.all(np.isfinite(a)):
+    if not np.isfinite(a).all():
         raise ValueError(f"action: must be finite (no NaN or inf), got {a.tolist()}")
-    return np.clip(a, 0.0, 1.0)
+    return np.minimum(np.maximum(a, 0.0), 1.0)
 
 
 def _check_rates(physics_hz, agent_hz):

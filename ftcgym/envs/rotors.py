@@ -28,6 +28,7 @@ class RotorSet:
         self.omega_dot = np.zeros(n)
         self.effectiveness = np.ones(n)
         self.loaded = np.ones(n, dtype=bool)
+        self._gain_dt = None
         # Moments of the rotor thrusts T_i (along -z): r_i x (0, 0, -T_i) = (-y_i T_i, x_i T_i, 0), 000 eq. (4).
         self._roll_arm = -self.positions[:, 1]
         self._pitch_arm = self.positions[:, 0]
@@ -55,11 +56,17 @@ class RotorSet:
         A motor that lost its propeller (000 Sec. III-A) is unloaded: the ESC drives it faster for the same
         command (`unloaded_speed_ratio`) and it responds faster (`unloaded_time_constant`).
         """
-        target = np.where(self.loaded, omega_cmd, omega_cmd * self.unloaded_speed_ratio)
-        tau = np.where(self.loaded, self.tau, self.tau_unloaded)
-        delta = (target - self.omega) * (1.0 - np.exp(-dt / tau))
+        if dt != self._gain_dt:
+            self._gain_dt = dt
+            self._gain_loaded = 1.0 - np.exp(-dt / self.tau)
+            self._gain_unloaded = 1.0 - np.exp(-dt / self.tau_unloaded)
+        if self.loaded.all():
+            delta = (omega_cmd - self.omega) * self._gain_loaded
+        else:
+            target = np.where(self.loaded, omega_cmd, omega_cmd * self.unloaded_speed_ratio)
+            delta = (target - self.omega) * np.where(self.loaded, self._gain_loaded, self._gain_unloaded)
         limit = self.max_acceleration * dt
-        delta = np.clip(delta, -limit, limit)
+        delta = np.minimum(np.maximum(delta, -limit), limit)
         self.omega_dot = delta / dt
         self.omega = self.omega + delta
 

@@ -108,8 +108,8 @@ class QuadrotorSensors:
             self._velocity = velocity + n[12:15]
         self._count += 1
         return {
-            "gyro": np.clip(gyro, -GYRO_LIMIT, GYRO_LIMIT),
-            "accel": np.clip(accel, -ACCEL_LIMIT, ACCEL_LIMIT),
+            "gyro": np.minimum(np.maximum(gyro, -GYRO_LIMIT), GYRO_LIMIT),
+            "accel": np.minimum(np.maximum(accel, -ACCEL_LIMIT), ACCEL_LIMIT),
             "attitude": _perturb(quat, n[6:9]),
             "position": self._position.copy(),
             "velocity": self._velocity.copy(),

@@ -5,12 +5,15 @@ so every number stays visible in `vehicles.py`. All inputs and outputs are NED /
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pybullet as p
 
 from .frames import quat_from_ned, quat_to_ned, rotation_matrix, vec_to_ned
 
 GRAVITY = 9.81
+_FLIP_BOTH = np.outer([1.0, -1.0, -1.0], [1.0, -1.0, -1.0])  # R_ned_frd = T R_pb T, elementwise
 
 
 class PyBulletWorld:
@@ -31,6 +34,7 @@ class PyBulletWorld:
         p.changeDynamics(self.body, -1, localInertiaDiagonal=list(inertia), linearDamping=0.0,
                          angularDamping=0.0, lateralFriction=0.8, restitution=0.0, physicsClientId=c)
         self.mass = mass
+        self.inertia = list(inertia)
         self.half_height = half[2]
         self._saved = p.saveState(physicsClientId=c)
 
@@ -46,14 +50,22 @@ class PyBulletWorld:
                             physicsClientId=c)
 
     def set_mass(self, mass: float) -> None:
-        p.changeDynamics(self.body, -1, mass=mass, physicsClientId=self.client)
+        """Change the mass, keeping the parameter set's inertia (a point payload at the centre of mass).
+
+        PyBullet recomputes the inertia from the collision box whenever the mass changes, so it is set again.
+        """
+        p.changeDynamics(self.body, -1, mass=mass, localInertiaDiagonal=self.inertia, physicsClientId=self.client)
 
     def state(self):
-        """Position (NED), quaternion (FRD->NED, x y z w), velocity (NED), angular velocity (NED)."""
+        """Position (NED), quaternion (FRD->NED, x y z w), rotation matrix (FRD->NED), velocity (NED) and
+        angular velocity (NED); raises FloatingPointError if the physics produced a non-finite state."""
         c = self.client
         pos, orn = p.getBasePositionAndOrientation(self.body, physicsClientId=c)
         vel, ang = p.getBaseVelocity(self.body, physicsClientId=c)
-        return vec_to_ned(pos), quat_to_ned(orn), vec_to_ned(vel), vec_to_ned(ang)
+        if not math.isfinite(sum(pos) + sum(vel) + sum(ang) + sum(orn)):
+            raise FloatingPointError("physics state became non-finite; please report this as a bug")
+        R = np.array(p.getMatrixFromQuaternion(orn, physicsClientId=c)).reshape(3, 3) * _FLIP_BOTH
+        return vec_to_ned(pos), quat_to_ned(orn), R, vec_to_ned(vel), vec_to_ned(ang)
 
     def step(self, force_ned, torque_ned, position_ned) -> None:
         """Apply a force at the centre of mass and a torque (world NED), then advance one physics step."""

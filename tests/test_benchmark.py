@@ -1,0 +1,231 @@
+"""Benchmark metrics on synthetic trajectories, the episode runner on a fake env, and `ftcgym bench`
+end to end on the real quadrotor."""
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from ftcgym.benchmark import metrics
+from ftcgym.benchmark.report import format_table, format_value
+from ftcgym.benchmark.runner import episode_seed, roll_out, run_benchmark, score_episode
+from ftcgym.benchmark.scenarios import get_scenario
+from ftcgym.cli import main
+
+# DESIGN.md's results.json field names, spelled out so a rename shows up here.
+DESIGN_EPISODE_FIELDS = [
+    "scenario", "policy", "seed", "fault_kind", "fault_target", "fault_onset", "alarm_time",
+    "detection_delay", "isolated_target", "isolation_correct", "false_alarm", "recovery_time",
+    "recovered", "crashed", "altitude_loss", "position_rmse", "airspeed_error_rmse", "flight_time",
+]
+DESIGN_SUMMARY_FIELDS = [
+    "scenario", "policy", "episodes", "detection_delay_median", "detection_delay_p95",
+    "missed_detection_rate", "false_alarms_per_hour", "isolation_accuracy",
+    "recovery_latency_median", "recovery_latency_p95", "success_rate", "crash_rate",
+]
+TIME = np.round(np.arange(0.0, 10.0 + 1e-9, 0.1), 10)
+
+
+def between(start, stop):
+    return (TIME >= start - 1e-9) & (TIME < stop - 1e-9)
+
+
+# ---- per-episode metrics ----
+
+def test_recovery_time_is_start_of_a_2s_recovered_window():
+    assert metrics.recovery_time(TIME, between(3.2, 5.7), onset=2.0) == pytest.approx(3.2)
+
+
+def test_recovery_time_skips_a_short_stretch():
+    recovered = between(3.0, 4.5) | between(5.0, 11.0)  # 1.5 s, a dip, then for good
+    assert metrics.recovery_time(TIME, recovered, onset=2.0) == pytest.approx(5.0)
+
+
+def test_recovery_time_counts_from_onset_and_can_be_none():
+    assert metrics.recovery_time(TIME, np.ones_like(TIME, bool), onset=2.0) == pytest.approx(2.0)
+    assert metrics.recovery_time(TIME, between(0.0, 8.5), onset=7.0) is None   # 1.5 s left after onset
+    assert metrics.recovery_time(TIME, np.zeros_like(TIME, bool), onset=2.0) is None
+
+
+def test_thrust_axis_of_a_rolled_vehicle_tilts_right():
+    roll = np.radians(20.0)
+    attitude = np.array([[0, 0, 0, 1], [np.sin(roll / 2), 0, 0, np.cos(roll / 2)]])
+    np.testing.assert_allclose(metrics.thrust_axis(attitude), [[0, 0, -1], [0, np.sin(roll), -np.cos(roll)]],
+                               atol=1e-12)
+    error = metrics.thrust_axis_error(attitude, np.array([[0, 0, -1], [0, 0, -2.0]]))
+    np.testing.assert_allclose(np.degrees(error), [0.0, 20.0])
+
+
+def test_hover_recovered_thresholds():
+    recovered = metrics.hover_recovered(altitude=[5.4, 5.6, 5.0, 4.6],
+                                        altitude_reference=[5.0] * 4,
+                                        axis_error=np.radians([9.0, 0.0, 11.0, 0.0]))
+    assert recovered.tolist() == [True, False, False, True]
+
+
+def test_altitude_loss_from_onset_to_lowest_point():
+    altitude = np.where(TIME < 2.0, 5.0, 5.0 - np.minimum(TIME - 2.0, 1.2) + np.maximum(TIME - 6.0, 0))
+    assert metrics.altitude_loss(TIME, altitude, onset=2.0) == pytest.approx(1.2)
+    assert metrics.altitude_loss(TIME, np.linspace(1, 5, TIME.size), onset=2.0) == 0.0
+    assert metrics.altitude_loss(TIME, altitude, onset=11.0) is None
+
+
+def test_position_rmse():
+    position = np.array([[3.0, 4.0, -5.0], [0.0, 0.0, -5.0]])
+    reference = np.array([[0.0, 0.0, -5.0], [0.0, 0.0, -5.0]])
+    assert metrics.position_rmse(position, reference) == pytest.approx(np.sqrt(25 / 2))
+
+
+# ---- summary ----
+
+def episode(**fields):
+    row = dict.fromkeys(DESIGN_EPISODE_FIELDS)
+    row.update(scenario="s", policy="p", crashed=False, flight_time=10.0)
+    row.update(fields)
+    return row
+
+
+def test_summary_of_fault_episodes_with_a_detector():
+    rows = [
+        episode(fault_onset=2.0, fault_target=1, alarm_time=2.1, detection_delay=0.1, isolated_target=1,
+                false_alarm=False, recovery_time=4.0, recovered=True),
+        episode(fault_onset=3.0, fault_target=3, alarm_time=3.3, detection_delay=0.3, isolated_target=2,
+                false_alarm=False, recovery_time=4.5, recovered=True),
+        episode(fault_onset=4.0, fault_target=0, false_alarm=False, recovered=False, crashed=True),
+        episode(fault_onset=2.0, fault_target=0, alarm_time=1.0, isolated_target=0, false_alarm=True,
+                recovery_time=5.0, recovered=False),   # recovered window but crashed later
+    ]
+    [summary] = metrics.summarize(rows)
+    assert list(summary) == DESIGN_SUMMARY_FIELDS
+    expected = {
+        "episodes": 4,
+        "detection_delay_median": 0.2, "detection_delay_p95": 0.1 + 0.95 * 0.2,
+        "missed_detection_rate": 0.5,
+        "false_alarms_per_hour": 3600.0 / (2 + 3 + 4 + 2),   # exposure: fault-free time before onsets
+        "isolation_accuracy": 0.5,                           # over the two detected faults
+        "recovery_latency_median": 1.75, "recovery_latency_p95": 1.5 + 0.95 * 0.5,
+        "success_rate": 0.5, "crash_rate": 0.25,
+    }
+    assert summary == pytest.approx({"scenario": "s", "policy": "p", **expected})
+
+
+def test_summary_of_fault_free_episodes_without_a_detector():
+    rows = [episode(policy="a"), episode(policy="b", crashed=True), episode(policy="a", crashed=True)]
+    summary = metrics.summarize(rows)
+    assert [(row["policy"], row["episodes"], row["success_rate"], row["crash_rate"]) for row in summary] == [
+        ("a", 2, 0.5, 0.5), ("b", 1, 0.0, 1.0)]
+    assert all(summary[0][field] is None for field in DESIGN_SUMMARY_FIELDS[3:10])
+
+
+def test_table_cells():
+    assert [format_value(v) for v in (None, 0.123456, 327.27, 4, "quad")] == ["-", "0.123", "327", "4", "quad"]
+    table = format_table([{field: None for field in DESIGN_SUMMARY_FIELDS} | {"scenario": "s", "policy": "p"}])
+    assert table.splitlines()[2].split() == ["s", "p"] + ["-"] * 10
+
+
+# ---- the runner on a fake env: what a policy sees, and what gets scored ----
+
+class FakeHoverEnv:
+    """Hovers at 5 m, sinks at 1 m/s after a rotor-1 loss at t = 2 s, back on target from t = 3 s."""
+
+    dt, onset = 0.1, 2.0
+
+    def reset(self, seed=None):
+        self.t = 0.0
+        return {}, self._info()
+
+    def step(self, action):
+        self.t = round(self.t + self.dt, 10)
+        return {}, 0.0, False, self.t >= 6.0, self._info()
+
+    def _info(self):
+        faulty = self.t >= self.onset
+        altitude = 5.0 - (self.t - self.onset) if faulty and self.t < 3.0 else 5.0
+        fault = {"active": faulty, "kind": "rotor_loss" if faulty else None, "target": 1 if faulty else None,
+                 "onset_time": self.onset if faulty else None, "magnitude": 1.0 if faulty else None}
+        alarm = self.t >= 2.3
+        return {
+            "time": self.t, "fault": fault, "faults": [{"kind": "rotor_loss", "target": 1, "time": self.onset}],
+            "truth": {"position": np.array([0.0, 0.0, -altitude]), "attitude": np.array([0.0, 0, 0, 1]),
+                      "rotor_speed": np.full(4, 500.0)},
+            "reference": {"position": np.array([0.0, 0.0, -5.0]), "velocity": np.zeros(3), "yaw": 0.0},
+            "crashed": False, "termination": None,
+            "fdd": {"fake": {"alarm": alarm, "alarm_time": 2.3 if alarm else None, "isolated": 1 if alarm else None}},
+        }
+
+
+class RecordingPolicy:
+    def __init__(self, oracle=False):
+        self.uses_true_onset = oracle
+        self.seen = []
+
+    def reset(self, obs, info):
+        self.seen.append(info)
+
+    def act(self, obs, info):
+        self.seen.append(info)
+        return np.zeros(4)
+
+
+def test_policies_never_see_the_truth_and_only_an_oracle_sees_the_onset():
+    for oracle in (False, True):
+        policy = RecordingPolicy(oracle)
+        roll_out(FakeHoverEnv(), policy, seed=0)
+        assert not any({"truth", "fault", "faults"} & set(info) for info in policy.seen)
+        assert all(("oracle_onset_time" in info) is oracle for info in policy.seen)
+    assert policy.seen[-1]["oracle_onset_time"] == 2.0
+
+
+def test_fake_episode_scores():
+    scores = score_episode(roll_out(FakeHoverEnv(), RecordingPolicy(), seed=0, detector="fake"))
+    assert scores == pytest.approx({
+        "fault_kind": "rotor_loss", "fault_target": 1, "fault_onset": 2.0, "alarm_time": 2.3,
+        "detection_delay": 0.3, "isolated_target": 1, "isolation_correct": True, "false_alarm": False,
+        "recovery_time": 3.0, "recovered": True, "crashed": False, "altitude_loss": 0.9,
+        "position_rmse": np.sqrt(2.85 / 61), "airspeed_error_rmse": None, "flight_time": 6.0,
+    })
+
+
+def test_a_missing_detector_is_an_error():
+    with pytest.raises(ValueError, match="never appeared"):
+        roll_out(FakeHoverEnv(), RecordingPolicy(), seed=0, detector="other")
+
+
+def test_unknown_scenario_lists_the_registered_ones():
+    with pytest.raises(ValueError, match="quad-hover"):
+        get_scenario("no-such-scenario")
+
+
+# ---- the real quadrotor ----
+
+def test_episode_seeds_depend_on_seed_and_index_only():
+    assert episode_seed(0, 1) == episode_seed(0, 1)
+    assert len({episode_seed(0, 0), episode_seed(0, 1), episode_seed(1, 0)}) == 3
+
+
+def test_workers_do_not_change_results_or_their_order():
+    def run(workers):
+        rows = run_benchmark(["quad-hover"], episodes=2, seed=3, workers=workers, progress=False,
+                             env_overrides={"max_episode_seconds": 0.3})
+        return [{k: v for k, v in row.items() if k != "trajectory"} for row in rows]
+
+    in_process = run(1)
+    assert [row["seed"] for row in in_process] == [episode_seed(3, 0), episode_seed(3, 1)]
+    assert run(2) == in_process
+
+
+def test_bench_cli_end_to_end(tmp_path, capsys):
+    assert main(["bench", "--scenario", "quad-hover", "--episodes", "1", "--workers", "1",
+                 "--env-kwargs", '{"max_episode_seconds": 2}', "--out", str(tmp_path)]) == 0
+    results = json.loads((tmp_path / "results.json").read_text())
+    assert set(results) == {"summary", "episodes", "config"}
+    assert [list(row) for row in results["episodes"]] == [DESIGN_EPISODE_FIELDS]
+    assert [list(row) for row in results["summary"]] == [DESIGN_SUMMARY_FIELDS]
+    [row] = results["episodes"]
+    assert row["flight_time"] == pytest.approx(2.0) and row["crashed"] is False
+    assert row["position_rmse"] < 0.5   # the nominal controller holds a 2 s hover
+    with (tmp_path / "episodes.csv").open() as file:
+        assert len(list(csv.DictReader(file))) == 1
+    assert (tmp_path / "quad-hover.png").stat().st_size > 0
+    assert "quad-hover.png" in (tmp_path / "report.md").read_text()
+    assert "quad-hover" in capsys.readouterr().out
