@@ -4,7 +4,10 @@ from __future__ import annotations
 from .base import Policy
 from .quadrotor_control import ControllerGains, NominalController, allocation_matrix
 
-POLICY_NAMES = ("nominal",)
+POLICY_DESCRIPTIONS = {
+    "nominal": "cascaded PID position/attitude/rate controller with model-based mixer; fault-unaware",
+}
+POLICY_NAMES = tuple(POLICY_DESCRIPTIONS)
 
 
 def make_policy(name: str, env) -> Policy:
@@ -15,4 +18,4 @@ def make_policy(name: str, env) -> Policy:
     raise ValueError(f"policy: unknown name {name!r}; accepted: {list(POLICY_NAMES)}")
 
 
-__all__ = ["ControllerGains", "NominalController", "POLICY_NAMES", "Policy", "allocation_matrix", "make_policy"]
+__all__ = ["ControllerGains", "NominalController", "POLICY_DESCRIPTIONS", "POLICY_NAMES", "Policy", "allocation_matrix", "make_policy"]

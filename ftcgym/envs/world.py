@@ -5,7 +5,11 @@ so every number stays visible in `vehicles.py`. All inputs and outputs are NED /
 """
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import math
+import os
+import sys
 
 import numpy as np
 import pybullet as p
@@ -16,11 +20,27 @@ GRAVITY = 9.81
 _FLIP_BOTH = np.outer([1.0, -1.0, -1.0], [1.0, -1.0, -1.0])  # R_ned_frd = T R_pb T, elementwise
 
 
+@contextlib.contextmanager
+def _stderr_silenced():
+    """PyBullet prints its build time to stderr on every connect: noise in every CLI run and worker."""
+    sys.stderr.flush()
+    saved, devnull = os.dup(2), os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, 2)
+    try:
+        yield
+    finally:
+        ctypes.CDLL(None).fflush(None)  # flush C stdio while it still points at devnull
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(devnull)
+
+
 class PyBulletWorld:
     """One PyBullet client stepping one rigid body at a fixed rate."""
 
     def __init__(self, physics_hz: float, mass: float, inertia, body_size, gui: bool = False):
-        self.client = p.connect(p.GUI if gui else p.DIRECT)
+        with _stderr_silenced():
+            self.client = p.connect(p.GUI if gui else p.DIRECT)
         c = self.client
         p.setGravity(0.0, 0.0, -GRAVITY, physicsClientId=c)
         p.setTimeStep(1.0 / physics_hz, physicsClientId=c)
