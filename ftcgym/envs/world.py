@@ -12,7 +12,6 @@ import os
 import sys
 
 import numpy as np
-import pybullet as p
 
 from .frames import quat_from_ned, quat_to_ned, rotation_matrix, vec_to_ned
 
@@ -22,7 +21,7 @@ _FLIP_BOTH = np.outer([1.0, -1.0, -1.0], [1.0, -1.0, -1.0])  # R_ned_frd = T R_p
 
 @contextlib.contextmanager
 def _stderr_silenced():
-    """PyBullet prints its build time to stderr on every connect: noise in every CLI run and worker."""
+    """PyBullet prints its build time to stderr when imported: noise in every CLI run and worker."""
     sys.stderr.flush()
     saved, devnull = os.dup(2), os.open(os.devnull, os.O_WRONLY)
     os.dup2(devnull, 2)
@@ -35,12 +34,15 @@ def _stderr_silenced():
         os.close(devnull)
 
 
+with _stderr_silenced():
+    import pybullet as p
+
+
 class PyBulletWorld:
     """One PyBullet client stepping one rigid body at a fixed rate."""
 
     def __init__(self, physics_hz: float, mass: float, inertia, body_size, gui: bool = False):
-        with _stderr_silenced():
-            self.client = p.connect(p.GUI if gui else p.DIRECT)
+        self.client = p.connect(p.GUI if gui else p.DIRECT)
         c = self.client
         p.setGravity(0.0, 0.0, -GRAVITY, physicsClientId=c)
         p.setTimeStep(1.0 / physics_hz, physicsClientId=c)
