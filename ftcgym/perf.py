@@ -77,12 +77,13 @@ def main(args) -> int:
         return 0
     print(f"ftcgym perf: Quadrotor-v0, {args.steps} steps per case, one process, resets included")
     print(f"workload: {WORKLOAD}")
-    header = f"{'case':34} {'steps/s':>9} {'sim s/s':>8} {'resets':>7} {'reset ms':>9} {'peak MiB':>9}"
+    header = (f"{'case':34} {'steps/s':>9} {'sim s/s':>8} {'resets':>7} {'reset ms':>9} {'peak MiB':>9} "
+              f"{'growth MiB':>10}")
     print(header)
     print("-" * len(header))
     for r in rows:
         print(f"{r['case']:34} {r['steps_per_s']:9.0f} {r['sim_s_per_wall_s']:8.1f} {r['resets']:7d} "
-              f"{r['reset_ms']:9.3f} {r['peak_rss_mib']:9.1f}")
+              f"{r['reset_ms']:9.3f} {r['peak_rss_mib']:9.1f} {r['rss_growth_mib']:10.1f}")
     return 0
 
 
