@@ -14,6 +14,9 @@ import time
 import gymnasium as gym
 import numpy as np
 
+import ftcgym  # noqa: F401  (registers the ids; imported before measuring so memory growth is the run's)
+from ftcgym.agents import make_policy
+
 #: every case flies with light turbulence, mean wind and a rotor loss (sensors are always on)
 WORKLOAD = {"wind": {"mean": [1.0, -1.0, 0.0], "turbulence": "light"}, "faults": "random:rotor_loss",
             "max_episode_seconds": 10.0}
@@ -32,9 +35,6 @@ def add_arguments(parser) -> None:
 
 def measure(env_kwargs: dict, actor: str, steps: int, seed: int) -> dict:
     """Steps/s, simulated s per wall s and reset cost of one case."""
-    import ftcgym  # noqa: F401  (registers the ids)
-    from ftcgym.agents import make_policy
-
     env = gym.make("ftcgym/Quadrotor-v0", **{**WORKLOAD, **env_kwargs})
     # Random actions come from one numpy draw up front: Box.sample() alone costs ~50 us a call, which
     # would measure gymnasium's sampler rather than the env.
@@ -66,6 +66,7 @@ def _rss_mib() -> float:
 
 
 def main(args) -> int:
+    measure({}, "nominal", 200, args.seed)  # warm-up: one-time allocations must not read as growth
     rows = []
     for name, kwargs, actor in CASES:
         before = _rss_mib()

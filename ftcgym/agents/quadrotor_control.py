@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..envs.frames import rotation_matrix
+from ..envs.frames import cross, rotation_matrix
 from ..envs.vehicles import GRAVITY, YAW_SIGNS, QuadrotorParams
 
 UP = np.array([0.0, 0.0, -1.0])  # NED
@@ -91,12 +91,12 @@ class NominalController:
     def _attitude_command(self, R, z_des, yaw) -> np.ndarray:
         """Body-rate command from the geometric attitude error e_R = vee(R_d^T R - R^T R_d) / 2 (Lee 2010)."""
         x_c = np.array([np.cos(yaw), np.sin(yaw), 0.0])
-        y_des = np.cross(z_des, x_c)
+        y_des = cross(z_des, x_c)
         y_des /= np.linalg.norm(y_des)
-        R_des = np.column_stack((np.cross(y_des, z_des), y_des, z_des))
+        R_des = np.array((cross(y_des, z_des), y_des, z_des)).T
         E = R_des.T @ R - R.T @ R_des
         e_R = 0.5 * np.array([E[2, 1], E[0, 2], E[1, 0]])
-        return np.clip(-self._katt * e_R, -self._max_rate, self._max_rate)
+        return np.minimum(np.maximum(-self._katt * e_R, -self._max_rate), self._max_rate)
 
     def _rate_command(self, gyro, rates_cmd) -> np.ndarray:
         if self._gyro is None:
@@ -104,10 +104,10 @@ class NominalController:
         self._gyro += self._gyro_alpha * (gyro - self._gyro)
         error = rates_cmd - self._gyro
         limit = self._alpha_integral_limit
-        self._rate_integral = np.clip(self._rate_integral + self._krate_i * error * self.dt, -limit, limit)
+        self._rate_integral = np.minimum(np.maximum(self._rate_integral + self._krate_i * error * self.dt, -limit), limit)
         alpha = self._krate * error + self._rate_integral
         I, w = self._inertia, self._gyro
-        return I * alpha + np.cross(w, I * w)
+        return I * alpha + cross(w, I * w)
 
     def mix(self, thrust: float, torque) -> np.ndarray:
         """Normalised rotor commands for a collective thrust (N) and body torques (N m).

@@ -120,7 +120,6 @@ class QuadrotorEnv(gym.Env):
     # ----------------------------------------------------------------------------------------- step
     def step(self, action):
         command = _check_action(action)
-        self._last_command = command
         self._omega_cmd = self.rotors.command_to_omega(command)
         for _ in range(self.substeps):
             self._physics_step()
@@ -134,8 +133,7 @@ class QuadrotorEnv(gym.Env):
         return obs, reward, terminated, truncated, self._info()
 
     def _physics_step(self) -> None:
-        t, dt = self.time, self.dt
-        rotors = self.rotors
+        dt, rotors = self.dt, self.rotors
         rotors.step(self._omega_cmd, dt)
         self._wind = self.wind.step()
         R = self._R
