@@ -7,6 +7,8 @@ import csv
 import json
 from pathlib import Path
 
+import numpy as np
+
 from matplotlib.figure import Figure  # a bare Figure renders with Agg: no pyplot, no global backend
 
 from ftcgym.benchmark.metrics import EPISODE_FIELDS, SUMMARY_FIELDS
@@ -70,8 +72,13 @@ def write_report(out_dir, summary: list[dict], episodes: list[dict], config: dic
     rows = [{field: episode[field] for field in EPISODE_FIELDS} for episode in episodes]
     paths = [write_json(out_dir / "results.json", {"summary": summary, "episodes": rows, "config": config}),
              write_csv(out_dir / "episodes.csv", rows)]
-    plots = [plot_scenario(out_dir / f"{name}.png", name, _of_scenario(episodes, name))
-             for name in dict.fromkeys(episode["scenario"] for episode in episodes)]
+    plots = []
+    for name in dict.fromkeys(episode["scenario"] for episode in episodes):
+        of_scenario = _of_scenario(episodes, name)
+        plots.append(plot_scenario(out_dir / f"{name}.png", name, of_scenario))
+        event = next((e for e in of_scenario if e["trajectory"].get("event")), None)
+        if event is not None:
+            plots.append(plot_event(out_dir / f"{name}-event.png", event))
     paths.append(write_markdown(out_dir / "report.md", summary, config, plots))
     return paths + plots
 
@@ -129,6 +136,34 @@ def plot_scenario(path: Path, scenario: str, episodes: list[dict]) -> Path:
     altitude_axes.legend(loc="best", fontsize="small")
     path_axes.set(title="horizontal path", xlabel="east (m)", ylabel="north (m)")
     path_axes.set_aspect("equal", adjustable="datalim")
+    figure.savefig(path, dpi=100)
+    return path
+
+
+def plot_event(path: Path, episode: dict) -> Path:
+    """Time history around the fault of one episode, as 000 Figs. 5, 8 and 9: altitude, attitude,
+    rotor speeds and each detector output, with the onset (dotted) and the alarm (dashed) marked."""
+    from scipy.spatial.transform import Rotation
+    event = episode["trajectory"]["event"]
+    outputs = event["outputs"]
+    roll_pitch = Rotation.from_quat(event["attitude"]).as_euler("ZYX", degrees=True)[:, :0:-1]
+    panels = [("altitude (m)", event["altitude"]), ("roll, pitch (deg)", roll_pitch),
+              ("yaw rate (deg/s)", np.rad2deg(event["body_rates"][:, 2])),
+              ("rotor speed (rad/s)", event["rotor_speed"])]
+    panels += [(f"{event['detector']}: {name}", values) for name, values in outputs.items()]
+    figure = Figure(figsize=(8, 1.7 * len(panels)), layout="constrained")
+    axes = figure.subplots(len(panels), 1, sharex=True)
+    for ax, (label, values) in zip(axes, panels):
+        ax.plot(event["time"], values, lw=1)
+        ax.set_ylabel(label, fontsize="small")
+        ax.axvline(event["onset"], color="k", ls=":", lw=1)
+        if event["alarm_time"] is not None:
+            ax.axvline(event["alarm_time"], color="r", ls="--", lw=1)
+    if values.ndim > 1 and values.shape[1] == 4:
+        axes[-1].legend([f"rotor {i}" for i in range(4)], fontsize="x-small", ncol=4, loc="best")
+    axes[0].set_title(f"{episode['scenario']} / {episode['policy']}: fault {episode['fault_kind']} "
+                      f"on {episode['fault_target']} (dotted), alarm (dashed)")
+    axes[-1].set_xlabel("time (s)")
     figure.savefig(path, dpi=100)
     return path
 

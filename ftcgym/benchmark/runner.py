@@ -24,6 +24,7 @@ from ftcgym.fdd.metrics import detection_delay, is_false_alarm
 # What a policy must not see (DESIGN.md): it learns of a fault only from detectors.
 PRIVATE_INFO_KEYS = ("truth", "fault", "faults")
 TRAJECTORY_MAX_HZ = 50.0
+EVENT_BEFORE_S, EVENT_AFTER_S = 0.3, 0.7  # full-rate window kept around a fault onset, for plots
 
 
 def episode_seed(seed: int, index: int) -> int:
@@ -52,8 +53,10 @@ class EpisodeLog:
     position: np.ndarray               # (N, 3) NED m, truth
     reference_position: np.ndarray     # (N, 3) NED m, the task's setpoint
     attitude: np.ndarray               # (N, 4) FRD->NED quaternion x, y, z, w, truth
+    body_rates: np.ndarray             # (N, 3) rad/s, truth
     rotor_speed: np.ndarray            # (N, 4) rad/s, truth
     thrust_axis_reference: np.ndarray  # (N, 3) NED unit vectors, from the policy
+    detector_outputs: dict             # field -> (N, k) array of the scored detector's observation outputs
     fault: dict | None                 # info["fault"] at the first onset, None if no fault began
     detector: str | None
     alarm_time: float | None           # first alarm of `detector`
@@ -67,23 +70,30 @@ class _Recorder:
     def __init__(self, detector: str | None):
         self.detector = detector
         self.rows: dict[str, list] = {name: [] for name in (
-            "time", "position", "reference_position", "attitude", "rotor_speed", "thrust_axis_reference")}
+            "time", "position", "reference_position", "attitude", "body_rates", "rotor_speed",
+            "thrust_axis_reference")}
+        self.detector_outputs: dict[str, list] = {}
         self.fault = None
         self.alarm_time = None
         self.isolated = None
         self.detector_seen = False
 
-    def record(self, info: dict, axis_reference: np.ndarray) -> None:
+    def record(self, info: dict, axis_reference: np.ndarray, obs: dict | None = None) -> None:
         truth = info["truth"]
         for name, value in (("time", info["time"]), ("position", truth["position"]),
                             ("reference_position", info["reference"]["position"]),
-                            ("attitude", truth["attitude"]), ("rotor_speed", truth["rotor_speed"]),
+                            ("attitude", truth["attitude"]), ("body_rates", truth["body_rates"]),
+                            ("rotor_speed", truth["rotor_speed"]),
                             ("thrust_axis_reference", axis_reference)):
             self.rows[name].append(np.array(value, dtype=float))
         if self.fault is None and info["fault"]["onset_time"] is not None:
             self.fault = dict(info["fault"])
         if self.detector is not None:
             self._latch_alarm(info)
+            prefix = f"fdd/{self.detector}/"
+            for key, value in (obs or {}).items():
+                if key.startswith(prefix):
+                    self.detector_outputs.setdefault(key[len(prefix):], []).append(np.array(value, dtype=float))
 
     def _latch_alarm(self, info: dict) -> None:
         entry = info.get("fdd", {}).get(self.detector)
@@ -101,6 +111,7 @@ class _Recorder:
             raise ValueError(f"detector {self.detector!r} never appeared in info['fdd']: "
                              "wrap the env with it (Scenario.wrappers or env kwargs)")
         return EpisodeLog(**{name: np.array(values) for name, values in self.rows.items()},
+                          detector_outputs={k: np.array(v) for k, v in self.detector_outputs.items()},
                           fault=self.fault, detector=self.detector, alarm_time=self.alarm_time,
                           isolated=self.isolated, crashed=bool(final_info["crashed"]))
 
@@ -112,11 +123,11 @@ def roll_out(env: gym.Env, policy, seed: int, detector: str | None = None) -> Ep
     recorder = _Recorder(detector)
     while True:
         action = policy.act(obs, policy_view(info, policy))
-        recorder.record(info, thrust_axis_reference(policy))
+        recorder.record(info, thrust_axis_reference(policy), obs)
         obs, _, terminated, truncated, info = env.step(action)
         if terminated or truncated:
             break
-    recorder.record(info, thrust_axis_reference(policy))
+    recorder.record(info, thrust_axis_reference(policy), obs)
     return recorder.finish(info)
 
 
@@ -169,14 +180,36 @@ def trajectory(log: EpisodeLog, max_hz: float = TRAJECTORY_MAX_HZ) -> dict[str, 
     step = float(np.median(np.diff(log.time))) if len(log.time) > 1 else 1.0
     stride = max(1, int(np.ceil(1.0 / (max_hz * step) - 1e-9)))
     keep = np.unique(np.append(np.arange(0, len(log.time), stride), len(log.time) - 1))
-    return {name: getattr(log, name)[keep]
-            for name in ("time", "position", "reference_position", "attitude", "rotor_speed")}
+    out = {name: getattr(log, name)[keep]
+           for name in ("time", "position", "reference_position", "attitude", "rotor_speed")}
+    out["event"] = event_window(log)
+    return out
+
+
+def event_window(log: EpisodeLog, before: float = EVENT_BEFORE_S, after: float = EVENT_AFTER_S) -> dict | None:
+    """Full-rate time history around the fault onset (as 000 Figs. 8-9): rotor speeds, attitude and the
+    scored detector's outputs; None without a fault."""
+    onset = (log.fault or {}).get("onset_time")
+    if onset is None:
+        return None
+    keep = (log.time >= onset - before) & (log.time <= onset + after)
+    window = {"time": log.time[keep], "rotor_speed": log.rotor_speed[keep], "attitude": log.attitude[keep],
+              "body_rates": log.body_rates[keep],
+              "altitude": -log.position[keep, 2], "onset": onset, "alarm_time": log.alarm_time,
+              "detector": log.detector}
+    window["outputs"] = {name: values[keep] for name, values in log.detector_outputs.items()}
+    return window
 
 
 def make_env(scenario: Scenario, env_overrides: dict | None = None) -> gym.Env:
-    """The scenario's env, its kwargs updated (top-level keys) by `env_overrides`, then wrapped."""
+    """The scenario's env, its kwargs updated (top-level keys) by `env_overrides`, wrapped with the
+    scenario's detector, then with its further wrappers."""
+    from ftcgym.fdd import wrap_with_detector
+
     kwargs = copy.deepcopy({**scenario.env_kwargs, **(env_overrides or {})})
     env = gym.make(scenario.env_id, **kwargs)
+    if scenario.detector is not None:
+        env = wrap_with_detector(scenario.detector, env, **scenario.detector_kwargs)
     for wrap in scenario.wrappers:
         env = wrap(env)
     return env

@@ -16,10 +16,10 @@ LIGHT_TURBULENCE = {"mean": [0.0, 0.0, 0.0], "turbulence": "light"}
 class Scenario:
     """One benchmark scenario.
 
-    `detector` names the `info["fdd"]` entry whose alarm is scored (None: no detection metrics);
-    the env must carry that detector, e.g. through `wrappers`: callables env -> env applied in order
-    after `gym.make` (module-level, so episodes can run in worker processes). `default` scenarios
-    are those `ftcgym bench` runs when no `--scenario` is given.
+    `detector` names the detector (`ftcgym.fdd.DETECTORS`) the env is wrapped with, built with
+    `detector_kwargs`, and whose `info["fdd"]` alarm is scored (None: no detection metrics). `wrappers`
+    are further callables env -> env applied after `gym.make` (module-level, so episodes can run in
+    worker processes). `default` scenarios are those `ftcgym bench` runs when no `--scenario` is given.
     """
 
     name: str
@@ -28,6 +28,7 @@ class Scenario:
     policies: tuple[str, ...] = ("nominal",)
     episodes: int = 4
     detector: str | None = None
+    detector_kwargs: dict = field(default_factory=dict)
     description: str = ""
     default: bool = False
     wrappers: tuple[Callable, ...] = ()
@@ -82,6 +83,47 @@ register(Scenario(
     env_kwargs={"task": "hover", "max_episode_seconds": 10.0, "wind": LIGHT_TURBULENCE,
                 "faults": "random:rotor_loss"},
     episodes=8,
+    detector="loe_kalman",
     description="Quadrotor hover in light turbulence; one random rotor loses its propeller at 2-5 s.",
     default=True,
+))
+register(Scenario(
+    name="quad-rotor-loss-maneuver",
+    env_id=QUADROTOR,
+    env_kwargs={"task": {"name": "square", "speed": 2.5}, "max_episode_seconds": 14.0, "wind": LIGHT_TURBULENCE,
+                "faults": [{"kind": "rotor_loss", "target": "random", "time": [4.0, 10.0]}]},
+    episodes=4,
+    detector="loe_kalman",
+    description="Quadrotor flying the square at 2.5 m/s in light turbulence; a random rotor is lost at 4-10 s.",
+    default=True,
+))
+register(Scenario(
+    name="quad-no-fault-long",
+    env_id=QUADROTOR,
+    env_kwargs={"task": {"name": "square", "speed": 2.0, "heading_changes": True}, "max_episode_seconds": 60.0,
+                "wind": {"mean": [1.0, -1.0, 0.0], "turbulence": "light"}},
+    episodes=7,
+    detector="loe_kalman",
+    description="Fault-free 60 s flights: square at 2 m/s with heading changes and speed excitation, "
+                "light turbulence and mean wind; counts false alarms.",
+))
+# 004 Sec. 5.1: a 0.5 kg quadcopter (our mueller2014 set) gains 0.5 kg between 40 and 42 s on the square.
+_PAYLOAD = {"vehicle": "mueller2014", "max_episode_seconds": 60.0,
+            "wind": {"mean": [1.0, -1.0, 0.0], "turbulence": "light"},
+            "faults": [{"kind": "payload", "time": 40.0, "magnitude": 0.5, "duration": 2.0}]}
+register(Scenario(
+    name="quad-payload",
+    env_id=QUADROTOR,
+    env_kwargs={**_PAYLOAD, "task": {"name": "square", "altitude": 8.0}},
+    episodes=4,
+    detector="iv_change",
+    description="004 Sec. 5.1: mass 0.5 -> 1 kg at 40-42 s on the 8 m square, light turbulence, wind (1, -1, 0).",
+))
+register(Scenario(
+    name="quad-payload-heading",
+    env_id=QUADROTOR,
+    env_kwargs={**_PAYLOAD, "task": {"name": "square", "altitude": 8.0, "heading_changes": True}},
+    episodes=4,
+    detector="iv_change",
+    description="As quad-payload, turning the heading by 90 deg at each corner (004's second scenario).",
 ))

@@ -1,0 +1,52 @@
+"""What every detector is: a plain numpy object fed one sample at a time.
+
+Detectors never import the simulator: they read a dict of sensor readings by key (the env's observation,
+or a row of a recorded log) and a time stamp, so the same object runs online in a wrapper and offline in
+`ftcgym replay`.
+"""
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+
+@runtime_checkable
+class Detector(Protocol):
+    """A fault detector.
+
+    name:           key under which the wrapper publishes it (`fdd/<name>/<field>`, `info["fdd"][name]`)
+    output_fields:  field -> (low, high, shape) of each array `outputs()` returns (the wrapper's spaces)
+    reset():        forget everything (a new flight)
+    update(readings, time, command=None): one sample; `command` is the last action sent, if known
+    outputs():      field -> float64 array, the estimates added to the observation
+    status():       {"alarm": bool, "alarm_time": float | None, "isolated": int | None, ...}
+    """
+
+    name: str
+    output_fields: dict
+
+    def reset(self) -> None: ...
+
+    def update(self, readings: dict, time: float, command: np.ndarray | None = None) -> None: ...
+
+    def outputs(self) -> dict: ...
+
+    def status(self) -> dict: ...
+
+
+class AlarmLatch:
+    """The first alarm of a flight: when it came and what it isolated (later alarms do not move it)."""
+
+    def __init__(self):
+        self.reset()
+
+    def reset(self) -> None:
+        self.alarm, self.alarm_time, self.isolated = False, None, None
+
+    def trigger(self, time: float, isolated=None) -> None:
+        if not self.alarm:
+            self.alarm, self.alarm_time, self.isolated = True, float(time), isolated
+
+    def status(self) -> dict:
+        return {"alarm": self.alarm, "alarm_time": self.alarm_time, "isolated": self.isolated}

@@ -1,0 +1,177 @@
+"""Loss-of-effectiveness detection with a Kalman estimator and a hypothesis test (000, Sec. IV).
+
+Strack van Schijndel, Sun, de Visser, "Fast Loss of Effectiveness Detection on a Quadrotor Using Onboard
+Sensors and a Kalman Estimation Approach", ICUAS 2023 (seed 000).
+
+Pipeline per sample (000 Fig. 3):
+1. Second-order low-pass H(s) = wn^2 / (s^2 + 2 zeta wn s + wn^2), wn = 50 rad/s, zeta = 0.55 (Sec. IV-A),
+   on p, q, a_z and the rotor speeds, discretised with the bilinear (Tustin) transform (scipy.signal).
+2. Angular accelerations by backward difference of the filtered rates (eq. 10).
+3. Kalman estimator of the effectiveness factors k (eq. 11-13, Algorithm 1): random walk x = k,
+   z = [p_dot, q_dot, a_z] = H(omega) x with H = diag(G) S diag(omega^2) (eq. 9, 12), k bounded to [0, 1.5].
+4. Failure probability P(k_i < k_thres) (eq. 15, corrected: see `failure_probability`) and decision eq. (16).
+Detection starts once the rotors produce a set share of the weight (take-off gating, Sec. V-D).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy import signal
+from scipy.special import erf
+
+from .base import AlarmLatch
+
+#: 000 eq. (9): signs of each rotor's contribution to p_dot, q_dot and a_z for rotors r1..r4 of Fig. 2.
+SIGNS_000 = np.array([[1.0, -1.0, -1.0, 1.0],
+                      [1.0, 1.0, -1.0, -1.0],
+                      [-1.0, -1.0, -1.0, -1.0]])
+#: 000 Table II.
+TABLE_II = {"G": (100e-6, 100e-6, 5e-6), "Q": 0.1, "R": 1.0, "k_threshold": 0.25, "p_fail_threshold": 0.9,
+            "step_size": 0.02}
+#: Process noise added per sample. Table II lists Q = 0.1 and a "step size" dT = 0.02 without saying how they
+#: combine; we read the random walk's variance per sample as Q dT. Taken literally as 0.1 per sample at 500 Hz,
+#: the variance along the direction eq. (12) cannot observe (3 measurements, 4 states) grows by 50 per second,
+#: so P_fail cannot pass 0.9 until the rotor speeds have diverged (~160 ms in our simulator, beyond 000's
+#: reported delays). Q dT gave 47-60 ms on tuning seeds 1000-1007 (see the issue's closing note).
+Q_PER_SAMPLE = TABLE_II["Q"] * TABLE_II["step_size"]
+GRAVITY = 9.81
+VARIANCE_CEILING = 1e6  # published k_var is clipped here (the unobservable direction's variance grows without bound)
+
+
+def lowpass_coefficients(wn: float, zeta: float, dt: float):
+    """Discrete (b, a) of the 000 Sec. IV-A low-pass by the bilinear (Tustin) transform."""
+    b, a, _ = signal.cont2discrete(([wn * wn], [1.0, 2.0 * zeta * wn, wn * wn]), dt, method="gbt", alpha=0.5)
+    return np.ravel(b), np.ravel(a)
+
+
+def failure_probability(k_hat, variance, k_threshold: float) -> np.ndarray:
+    """(P_fail)_i = P(k_i < k_thres) = 0.5 (1 + erf((k_thres - k_hat_i) / (sigma_i sqrt(2)))), sigma_i = sqrt(P_ii).
+
+    000 eq. (15) as printed computes P(k_i > k_thres) and divides by the variance instead of the standard
+    deviation (erratum, seeds/README.md); this is the intended value, the normal CDF at k_thres.
+    """
+    sigma = np.sqrt(np.maximum(variance, 1e-300))
+    return 0.5 * (1.0 + erf((k_threshold - np.asarray(k_hat)) / (sigma * math.sqrt(2.0))))
+
+
+def kalman_step(x, P, z, H, Q, R, k_bounds=(0.0, 1.5)):
+    """One step of 000 Algorithm 1 (random-walk Kalman estimator), then the bound on k (Sec. IV-B)."""
+    P = P + Q                                   # P_k|k-1 = P_k-1 + Q
+    y = z - H @ x                               # innovation
+    S = R + H @ P @ H.T
+    K = np.linalg.solve(S, H @ P).T             # K = P H^T S^-1 (S, P symmetric)
+    x = np.clip(x + K @ y, *k_bounds)
+    P = (np.eye(len(x)) - K @ H) @ P            # P_k|k = (I - K H) P_k|k-1
+    return x, 0.5 * (P + P.T)
+
+
+class _Biquad:
+    """Direct-form-II-transposed second-order filter on several channels at once, started at steady state."""
+
+    def __init__(self, b, a):
+        self.b, self.a = b / a[0], a / a[0]
+        self.z = None
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        b, a = self.b, self.a
+        if self.z is None:  # start as if x had always been there: no start-up transient
+            self.z = np.outer(signal.lfilter_zi(b, a), x)
+        y = b[0] * x + self.z[0]
+        self.z[0] = b[1] * x - a[1] * y + self.z[1]
+        self.z[1] = b[2] * x - a[2] * y
+        return y
+
+
+class LoeKalmanDetector:
+    """000's LOE detector. Readings: `gyro` (rad/s, FRD), `accel` (specific force, m/s^2), `rotor_speed` (rad/s).
+
+    Parameters (defaults: 000 Table II and Sec. IV-A):
+    dt: sample time (000 runs at 500 Hz). G: (G_p, G_q, G_az) of eq. (9). effectiveness_matrix: an optional
+    (3, 4) B with [p_dot, q_dot, a_z] = B omega^2, replacing diag(G) S for a vehicle with other geometry or
+    motor numbering (e.g. identified from a log). Q, R: process noise per sample and measurement noise
+    (scalars times I; see Q_PER_SAMPLE).
+    k_threshold, p_fail_threshold: eq. (15)-(16). takeoff_fraction: detection starts once the rotors carry
+    this share of the weight (|B[2] omega^2| >= fraction * g), 000 Sec. V-D.
+    """
+
+    name = "loe_kalman"
+    output_fields = {"k_hat": (0.0, 1.5, (4,)), "k_var": (0.0, VARIANCE_CEILING, (4,)), "p_fail": (0.0, 1.0, (4,))}
+
+    def __init__(self, dt: float, G=TABLE_II["G"], effectiveness_matrix=None, Q: float = Q_PER_SAMPLE,
+                 R: float = TABLE_II["R"], k_threshold: float = TABLE_II["k_threshold"],
+                 p_fail_threshold: float = TABLE_II["p_fail_threshold"], k_bounds=(0.0, 1.5),
+                 filter_wn: float = 50.0, filter_zeta: float = 0.55, takeoff_fraction: float = 0.5,
+                 initial_variance: float = 0.01):
+        if not (np.isfinite(dt) and dt > 0):
+            raise ValueError(f"dt: must be a finite number > 0, got {dt!r}")
+        self.dt = float(dt)
+        B = np.diag(np.asarray(G, dtype=float)) @ SIGNS_000 if effectiveness_matrix is None else \
+            np.asarray(effectiveness_matrix, dtype=float)
+        if B.shape != (3, 4) or not np.all(np.isfinite(B)):
+            raise ValueError(f"effectiveness_matrix: must be a finite (3, 4) array, got shape {B.shape}")
+        self.B = B
+        self.Q, self.R = Q * np.eye(4), R * np.eye(3)
+        self.k_threshold, self.p_fail_threshold = k_threshold, p_fail_threshold
+        self.k_bounds = k_bounds
+        self.takeoff_fraction = takeoff_fraction
+        self.initial_variance = initial_variance
+        self._coefficients = lowpass_coefficients(filter_wn, filter_zeta, self.dt)
+        self._alarm = AlarmLatch()
+        self.reset()
+
+    def reset(self) -> None:
+        self.x = np.ones(4)
+        self.P = self.initial_variance * np.eye(4)
+        self.p_fail = np.zeros(4)
+        self._filter = _Biquad(*self._coefficients)
+        self._previous_rates = None
+        self.armed = False
+        self._alarm.reset()
+
+    def update(self, readings: dict, time: float, command=None) -> None:
+        gyro, accel, omega = (_finite(readings, key) for key in ("gyro", "accel", "rotor_speed"))
+        filtered = self._filter(np.concatenate((gyro[:2], accel[2:3], omega)))
+        rates, a_z, omega_f = filtered[:2], filtered[2], filtered[3:]
+        previous, self._previous_rates = self._previous_rates, rates
+        omega2 = omega_f * omega_f
+        if not self.armed:
+            self.armed = abs(self.B[2] @ omega2) >= self.takeoff_fraction * GRAVITY
+        if previous is None or not self.armed:
+            return
+        z = np.array((*(rates - previous) / self.dt, a_z))          # eq. (10), (13)
+        H = self.B * omega2                                          # eq. (12): B diag(omega^2)
+        self.x, self.P = kalman_step(self.x, self.P, z, H, self.Q, self.R, self.k_bounds)
+        self.p_fail = failure_probability(self.x, np.diag(self.P), self.k_threshold)
+        failed = self.p_fail > self.p_fail_threshold                # eq. (16)
+        if failed.any():
+            self._alarm.trigger(time, int(np.argmax(self.p_fail)))
+
+    def outputs(self) -> dict:
+        return {"k_hat": self.x.copy(), "k_var": np.minimum(np.diag(self.P), VARIANCE_CEILING),
+                "p_fail": self.p_fail.copy()}
+
+    def status(self) -> dict:
+        return {**self._alarm.status(), "k_hat": self.x.tolist(), "p_fail": self.p_fail.tolist(),
+                "armed": self.armed}
+
+
+def loe_kalman_wrapper(env, G="vehicle", **kwargs):
+    """`env` wrapped with a LoeKalmanDetector at the env's agent rate.
+
+    G="vehicle" takes eq. (9)'s G = (c_T b / Ix, c_T h / Iy, c_T / m) from the env's nominal parameter set
+    (design data a user has, as 000 identified G for its Bebop); pass numbers to override it, e.g. scaled by
+    +-20% as in 000 Fig. 11.
+    """
+    from .wrapper import DetectorWrapper
+    dt = 1.0 / env.get_wrapper_attr("agent_hz")
+    if isinstance(G, str) and G == "vehicle":
+        G = tuple(env.get_wrapper_attr("params").effectiveness_G)
+    return DetectorWrapper(env, LoeKalmanDetector(dt, G=G, **kwargs))
+
+
+def _finite(readings: dict, key: str) -> np.ndarray:
+    value = np.asarray(readings[key], dtype=float)
+    if not np.all(np.isfinite(value)):
+        raise ValueError(f"loe_kalman: reading {key!r} is not finite: {value.tolist()}")
+    return value

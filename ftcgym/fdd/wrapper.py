@@ -1,0 +1,58 @@
+"""`DetectorWrapper`: runs a detector on every observation and publishes what it finds.
+
+Like a Gymnasium `ObservationWrapper`, it adds keys to the observation (`fdd/<name>/<field>`) and declares
+them in `observation_space`; it also adds `info["fdd"][<name>]` (alarm, alarm_time, isolated, estimates).
+It reads the observation by key and `info["time"]` only, never simulator internals.
+"""
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from .base import Detector
+
+
+class DetectorWrapper(gym.ObservationWrapper):
+    """Feed `detector` each observation; add its outputs to the observation and its status to `info`."""
+
+    def __init__(self, env: gym.Env, detector: Detector):
+        super().__init__(env)
+        if not isinstance(env.observation_space, spaces.Dict):
+            raise ValueError("DetectorWrapper: the env's observation_space must be a Dict of sensor readings")
+        self.detector = detector
+        self.prefix = f"fdd/{detector.name}/"
+        extra = {self.prefix + field: spaces.Box(low, high, shape, np.float64)
+                 for field, (low, high, shape) in detector.output_fields.items()}
+        clash = set(extra) & set(env.observation_space.spaces)
+        if clash:
+            raise ValueError(f"DetectorWrapper: keys {sorted(clash)} already in the observation (detector twice?)")
+        self.observation_space = spaces.Dict({**env.observation_space.spaces, **extra})
+        self._command = None
+        self._time = 0.0
+
+    def reset(self, *, seed=None, options=None):
+        self.detector.reset()
+        self._command = None
+        obs, info = self.env.reset(seed=seed, options=options)
+        return self._publish(obs, info)
+
+    def step(self, action):
+        self._command = np.asarray(action, dtype=np.float64)
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        obs, info = self._publish(obs, info)
+        return obs, reward, terminated, truncated, info
+
+    def _publish(self, obs, info):
+        self._time = float(info["time"])
+        obs = self.observation(obs)
+        fdd = dict(info.get("fdd", {}))
+        fdd[self.detector.name] = self.detector.status()
+        return obs, {**info, "fdd": fdd}
+
+    def observation(self, observation: dict) -> dict:
+        self.detector.update(observation, self._time, self._command)
+        out = dict(observation)
+        for field, value in self.detector.outputs().items():
+            out[self.prefix + field] = value
+        return out
