@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import shlex
@@ -30,6 +31,7 @@ def build_parser() -> argparse.ArgumentParser:
     subparsers = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     _add_bench(subparsers)
     # ---- further subcommands, one `_add_<name>(subparsers)` each (replay and train to come) ----
+    _add_replay(subparsers)
     _add_perf(subparsers)
     return parser
 
@@ -59,6 +61,10 @@ def _add_bench(subparsers) -> None:
                         help="worker processes; 1 runs in-process (default: one per CPU)")
     parser.add_argument("--env-kwargs", type=_json_object, default={}, metavar="JSON",
                         help="JSON object merged (top-level keys) into every scenario's gym.make kwargs")
+    parser.add_argument("--detector", metavar="NAME", type=_detector_name,
+                        help="detector to wrap every scenario's env with and score (default: each scenario's own)")
+    parser.add_argument("--detector-kwargs", type=_json_object, default={}, metavar="JSON",
+                        help='JSON object of detector arguments, e.g. \'{"G_scale": 1.2}\' for loe_kalman')
     parser.add_argument("--out", default="bench_out", metavar="DIR",
                         help="output directory (default: bench_out)")
     parser.add_argument("--list", action="store_true", help="list scenarios and policies, then exit")
@@ -74,7 +80,8 @@ def _run_bench(args, argv: list[str]) -> int:
     from ftcgym.benchmark.runner import run_benchmark
     from ftcgym.benchmark.scenarios import default_scenarios
 
-    scenarios = args.scenario or default_scenarios()
+    scenarios = [_with_detector(scenario, args.detector, args.detector_kwargs)
+                 for scenario in (args.scenario or default_scenarios())]
     started = time.perf_counter()
     episodes = run_benchmark(scenarios, args.policy, args.episodes, args.seed, args.workers, args.env_kwargs)
     summary = summarize(episodes)
@@ -84,6 +91,25 @@ def _run_bench(args, argv: list[str]) -> int:
     print(f"\n{len(episodes)} episodes in {config['wall_time_s']:.1f} s; "
           f"wrote {', '.join(path.name for path in paths)} to {args.out}")
     return 0
+
+
+def _with_detector(scenario, detector: str | None, detector_kwargs: dict):
+    """`scenario` with the command line's detector choice and constructor arguments applied."""
+    if detector is None and not detector_kwargs:
+        return scenario
+    name = detector or scenario.detector
+    if name is None:
+        raise SystemExit(f"--detector-kwargs: scenario {scenario.name!r} has no detector; name one with --detector")
+    kwargs = detector_kwargs if detector and detector != scenario.detector else {**scenario.detector_kwargs,
+                                                                               **detector_kwargs}
+    return dataclasses.replace(scenario, detector=name, detector_kwargs=kwargs)
+
+
+def _detector_name(text: str) -> str:
+    from ftcgym.fdd import DETECTORS
+    if text not in DETECTORS:
+        raise argparse.ArgumentTypeError(f"unknown detector {text!r}; accepted: {', '.join(sorted(DETECTORS))}")
+    return text
 
 
 def _bench_config(args, argv: list[str], scenarios, wall_time_s: float) -> dict:
@@ -103,6 +129,7 @@ def _bench_config(args, argv: list[str], scenarios, wall_time_s: float) -> dict:
             "policies": list(args.policy or scenario.policies),
             "episodes": args.episodes or scenario.episodes,
             "detector": scenario.detector,
+            "detector_kwargs": scenario.detector_kwargs,
             "description": scenario.description,
         } for scenario in scenarios],
         "wall_time_s": wall_time_s,
@@ -156,6 +183,26 @@ def _json_object(text: str) -> dict:
     if not isinstance(value, dict):
         raise argparse.ArgumentTypeError(f"expected a JSON object of gym.make kwargs, got {text}")
     return value
+
+
+# ---- replay (ftcgym/fdd/replay.py provides main(args)) ----
+
+def _add_replay(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "replay", help="run a fault detector over a recorded flight log",
+        description="Run a detector over every sample of a flight log (PX4 ULog .ulg, or an ftcgym recording "
+                    ".npz/.csv) and print its alarms: times from the log's start, targets in its actuator order.")
+    parser.add_argument("log", metavar="LOG", help="the flight log")
+    parser.add_argument("--detector", required=True, metavar="NAME", help="detector to run (loe_kalman)")
+    parser.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    parser.add_argument("--rate", type=float, default=250.0, metavar="HZ",
+                        help="rate a ULog is resampled to (default: 250); recordings keep their own")
+    parser.set_defaults(run=_run_replay)
+
+
+def _run_replay(args, argv: list[str]) -> int:
+    from ftcgym.fdd.replay import main  # imported here: only replay needs scipy and pyulog
+    return main(args)
 
 
 # ---- perf (ftcgym/perf.py provides add_arguments(parser) and main(args)) ----

@@ -156,18 +156,18 @@ class LoeKalmanDetector:
                 "armed": self.armed}
 
 
-def loe_kalman_wrapper(env, G="vehicle", **kwargs):
+def loe_kalman_wrapper(env, G="vehicle", G_scale: float = 1.0, **kwargs):
     """`env` wrapped with a LoeKalmanDetector at the env's agent rate.
 
     G="vehicle" takes eq. (9)'s G = (c_T b / Ix, c_T h / Iy, c_T / m) from the env's nominal parameter set
-    (design data a user has, as 000 identified G for its Bebop); pass numbers to override it, e.g. scaled by
-    +-20% as in 000 Fig. 11.
+    (design data a user has, as 000 identified G for its Bebop); pass numbers to override it. G_scale
+    multiplies G, e.g. 0.8 or 1.2 for 000 Fig. 11's +-20% sensitivity study.
     """
     from .wrapper import DetectorWrapper
     dt = 1.0 / env.get_wrapper_attr("agent_hz")
     if isinstance(G, str) and G == "vehicle":
-        G = tuple(env.get_wrapper_attr("params").effectiveness_G)
-    return DetectorWrapper(env, LoeKalmanDetector(dt, G=G, **kwargs))
+        G = env.get_wrapper_attr("params").effectiveness_G
+    return DetectorWrapper(env, LoeKalmanDetector(dt, G=tuple(np.asarray(G) * G_scale), **kwargs))
 
 
 def _finite(readings: dict, key: str) -> np.ndarray:

@@ -4,15 +4,18 @@ A `FlightLog` holds sensor readings keyed like the env's observation (`gyro` rad
 specific force in body FRD, `rotor_speed` rad/s, optionally `attitude` x y z w, `position` and `velocity`
 NED), so a detector reads a logged sample exactly as it reads a live observation.
 
-PX4 logs carry no rotor speeds, only the PWM sent to the ESCs. `read_ulog` turns it into a speed as 001
+PX4 logs carry no rotor speeds, only the PWM sent to the ESCs. `read_ulog` makes speeds from it, as 001
 Sec. 7.4 did for a prototype without RPM feedback:
-- a linear map from the PWM range (1000-2000 us in these logs; 900 = disarmed) to 0..`max_rotor_speed`.
-  An ESC in open loop sets a voltage ~ duty cycle and a loaded motor turns at a speed ~ voltage, so
-  speed ~ PWM is the first-order physics. The scale does not matter to the detector: its effectiveness
-  matrix is identified on the same speeds, so any factor on omega^2 cancels.
-- the motor's first-order lag (time constant `motor_time_constant`), since speed trails the command;
-- the PWM is held between logged samples (zero-order hold), as the ESC holds the last pulse width; unlike
-  interpolation this never uses a command logged after the instant (SIL logs keep it at only 10 Hz).
+- a linear map, PWM min -> idle speed, PWM max -> full speed (1000 and 2000 us in these logs; 900 us is
+  disarmed: stopped). An open-loop ESC sets a voltage ~ duty cycle and a loaded motor turns at a speed ~
+  voltage, from an idle speed once armed: the form of our env's ESC model (omega_min + u (omega_max -
+  omega_min)); 000's Bebop idles at 1/4 of its top speed (Sec. IV-A). Idle = 15% of full speed is what the
+  fault-free hover of the RflyMAD HIL logs says: there the fit a_z = G_az sum(omega^2) + bias has no bias
+  (no thrust, no specific force) and its slope equals the hover ratio a_z / sum(omega^2); at idle 0 the
+  slope is only half of it. The full speed only scales omega^2, which the identified gains absorb.
+- the PWM held between logged samples (zero-order hold), as the ESC holds the last pulse width; unlike
+  interpolation it never uses a command logged after the instant (SIL logs keep it at only 10 Hz).
+- a dead time and the motor's first-order lag (see `read_ulog`).
 IMU samples are interpolated linearly onto the grid (they sample continuous signals).
 """
 from __future__ import annotations
@@ -28,11 +31,11 @@ from scipy import signal
 FTCGYM_ROTOR_ORDER = "ftcgym / 000 Fig. 2: 0 front-left, 1 front-right, 2 rear-right, 3 rear-left"
 PX4_QUAD_X_ORDER = "PX4 quad X outputs: 0 front-right, 1 rear-left, 2 front-left, 3 rear-right"
 
-PWM_RANGE = (1000.0, 2000.0)       # us, idle..full in the RflyMAD logs (outputs span exactly 1000-2000)
+PWM_RANGE = (1000.0, 2000.0)       # us, idle..full in the RflyMAD logs (armed outputs span exactly 1000-2000)
 MAX_ROTOR_SPEED = 1000.0           # rad/s at full PWM: ~9500 rpm, a 450-class quad's 10" prop (scale only)
-IDLE_ROTOR_SPEED = 150.0           # rad/s at PWM min (armed), see read_ulog
-MOTOR_TIME_CONSTANT = 0.03         # s, see read_ulog
-ACTUATOR_DELAY = 0.0               # s, see read_ulog
+IDLE_ROTOR_SPEED = 150.0           # rad/s at PWM min, armed: 15% of full speed (module docstring)
+MOTOR_TIME_CONSTANT = 0.01         # s, see read_ulog
+ACTUATOR_DELAY = 0.024             # s, see read_ulog
 ULOG_TOPICS = ("sensor_combined", "actuator_outputs", "vehicle_attitude", "vehicle_local_position",
                "rfly_ctrl_lxl")
 
@@ -86,16 +89,23 @@ def read_ulog(path, rate_hz: float = 250.0, pwm_range=PWM_RANGE, max_rotor_speed
               actuator_delay: float = ACTUATOR_DELAY, n_rotors: int = 4) -> FlightLog:
     """A PX4 ULog resampled to `rate_hz`, with rotor speeds made from the PWM outputs (module docstring).
 
-    motor_time_constant: 0.03 s was identified on the fault-free flight of the RflyMAD HIL logs (where the
-    PWM is logged at ~225 Hz): the residual of the control-effectiveness fit (replay.identify_effectiveness)
-    is least for tau ~ 25-35 ms, in the range of 10"-prop brushless motors and of 000's Bebop (~30 ms).
+    Rotor outputs 0-3 follow PX4's quad X numbering (MOT_ORDERING 0, as in RflyMAD). The speed lags the
+    PWM by `actuator_delay` s, then by a first-order lag of `motor_time_constant` s. Both were identified
+    on the fault-free flight of the RflyMAD HIL logs (PWM at ~225 Hz): the roll and pitch rows of
+    `replay.identify_effectiveness` explain most (R^2 0.77) for a lag plus dead time of ~33 ms, nearly all
+    dead time (tau 5-10 ms with 24-28 ms delay; a 30 ms lag alone reaches R^2 0.37): the simulator's loop
+    (USB, MAVLink) adds to the motor. The SIL logs' 10 Hz PWM cannot resolve this; they get the same values.
     """
     from pyulog import ULog
 
     ulog = ULog(str(path), list(ULOG_TOPICS))
     topics = {d.name: d.data for d in ulog.data_list if d.multi_id == 0}
     start = ulog.start_timestamp
+    missing = [name for name in ULOG_TOPICS[:2] if name not in topics]
+    if missing:
+        raise ValueError(f"{path}: no {' or '.join(missing)} topic to make the readings from")
     imu, outputs = topics["sensor_combined"], topics["actuator_outputs"]
+    # one stamp for gyro and accelerometer: accelerometer_timestamp_relative is 0 in the RflyMAD logs
     t_imu, t_out = _seconds(imu, start), _seconds(outputs, start)
     time = uniform_grid(max(t_imu[0], t_out[0]), min(t_imu[-1], t_out[-1]), rate_hz)
 
@@ -109,8 +119,9 @@ def read_ulog(path, rate_hz: float = 250.0, pwm_range=PWM_RANGE, max_rotor_speed
     readings.update(_navigation(topics, start, time))
     fault_time, fault_target, effectiveness = _rfly_fault(topics.get("rfly_ctrl_lxl"), start, n_rotors)
     metadata = {"pwm_range": list(pwm_range), "max_rotor_speed": max_rotor_speed,
-                "motor_time_constant": motor_time_constant, "fault_effectiveness": effectiveness,
-                "hardware": ulog.msg_info_dict.get("ver_hw", "")}
+                "idle_rotor_speed": idle_rotor_speed, "motor_time_constant": motor_time_constant,
+                "actuator_delay": actuator_delay, "actuator_rate_hz": _median_rate(t_out),
+                "fault_effectiveness": effectiveness, "hardware": ulog.msg_info_dict.get("ver_hw", "")}
     return FlightLog(time, readings, PX4_QUAD_X_ORDER, fault_time, fault_target, str(path), None, metadata)
 
 
@@ -154,6 +165,10 @@ def first_order_lag(command: np.ndarray, dt: float, time_constant: float) -> np.
 def _seconds(data: dict, start: int) -> np.ndarray:
     # int64 first: a few topics carry stamps from before the log's start, which wrap around in uint64.
     return (data["timestamp"].astype(np.int64) - np.int64(start)) * 1e-6
+
+
+def _median_rate(t: np.ndarray) -> float:
+    return float(1.0 / np.median(np.diff(t)))
 
 
 def _columns(data: dict, name: str, n: int) -> np.ndarray:

@@ -6,7 +6,9 @@ part (`identify_effectiveness`), since 000's G belongs to the Bebop 2 and its si
 """
 from __future__ import annotations
 
+import contextlib
 import json
+import sys
 
 import numpy as np
 from scipy import signal
@@ -24,6 +26,14 @@ ROTOR_SIGNS = {
 }
 MAIN_ESTIMATE = {"loe_kalman": "k_hat"}   # detector -> the output that `final_estimate` reports
 FILTER_WN, FILTER_ZETA = 50.0, 0.55       # rad/s, 000 Sec. IV-A, as in the detector
+#: Below this PWM log rate the roll/pitch gains cannot be identified: the low-pass passes ~8 Hz (50 rad/s),
+#: and PWM sampled at 10 Hz (RflyMAD SIL logs) misses the controller's fast corrections, so the fit dilutes
+#: them to 1-15% of their value (checked by decimating the ~225 Hz HIL logs to 10 Hz).
+MIN_IDENTIFICATION_RATE_HZ = 50.0
+#: (G_p, G_q) / G_az = m * arm / I (000 eq. 9) used then: identified on the fault-free part of the RflyMAD
+#: HIL logs (PWM at ~225 Hz), where G_p / G_az = 10.4-12.6 and G_q / G_az = 10.1-13.5; the SIL logs fly the
+#: same simulated vehicle (same hover PWM, same G_az = 1.7e-5 within 2%).
+ROLL_PITCH_PER_HEAVE = 12.0
 
 
 # ----------------------------------------------------------------------------------------- replay
@@ -54,9 +64,13 @@ def _main_estimate(detector) -> list:
 
 def make_detector(name: str, log: FlightLog, **overrides):
     """The detector `name` set up for `log`; keyword arguments override its constructor's."""
+    return _detector_factory(name)(log, **overrides)
+
+
+def _detector_factory(name: str):
     if name not in DETECTORS:
         raise ValueError(f"unknown detector {name!r}; available: {', '.join(DETECTORS)}")
-    return DETECTORS[name](log, **overrides)
+    return DETECTORS[name]
 
 
 def _loe_kalman(log: FlightLog, **overrides) -> LoeKalmanDetector:
@@ -66,12 +80,22 @@ def _loe_kalman(log: FlightLog, **overrides) -> LoeKalmanDetector:
         if "effectiveness_G" in log.metadata:
             settings["G"] = tuple(log.metadata["effectiveness_G"])
     elif "effectiveness_matrix" not in overrides:
-        # 000's model has no bias: k_i scales rotor i's whole thrust, so B must reproduce the thrust itself
-        # (a fit through the origin), not its local slope, and only the gains are left to the data.
-        B, _ = identify_effectiveness(log, *fault_free_window(log), signs=ROTOR_SIGNS.get(log.actuator_order),
-                                      bias=False)
-        settings["effectiveness_matrix"] = B
+        settings["effectiveness_matrix"] = effectiveness_for_detector(log)
     return LoeKalmanDetector(**{**settings, **overrides})
+
+
+def effectiveness_for_detector(log: FlightLog) -> np.ndarray:
+    """000's B for another vehicle, from the fault-free flight of `log`.
+
+    Through the origin: 000's model has no bias (k_i scales rotor i's whole thrust, so B must reproduce the
+    thrust itself, not its local slope). With the rotor layout known, only the gains G are left to the data.
+    """
+    signs = ROTOR_SIGNS.get(log.actuator_order)
+    B, _ = identify_effectiveness(log, *fault_free_window(log), signs=signs, bias=False)
+    if signs is not None and log.metadata.get("actuator_rate_hz", np.inf) < MIN_IDENTIFICATION_RATE_HZ:
+        heave_gain = abs(B[2, 0])
+        B[:2] = signs[:2] * ROLL_PITCH_PER_HEAVE * heave_gain
+    return B
 
 
 DETECTORS = {"loe_kalman": _loe_kalman}
@@ -148,18 +172,17 @@ def takeoff_time(log: FlightLog, climb: float = 1.0) -> float:
 
 # ----------------------------------------------------------------------------------------- command line
 
-def add_arguments(parser) -> None:
-    parser.add_argument("log", metavar="LOG", help="flight log: PX4 ULog (.ulg) or ftcgym recording (.npz, .csv)")
-    parser.add_argument("--detector", required=True, metavar="NAME", choices=sorted(DETECTORS),
-                        help=f"detector to run ({', '.join(DETECTORS)})")
-    parser.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
-    parser.add_argument("--rate", type=float, default=250.0, metavar="HZ",
-                        help="resampling rate of a ULog (default: 250); recordings keep their own")
-
-
 def main(args) -> int:
-    log = read_log(args.log, rate_hz=args.rate)
-    result = replay(log, make_detector(args.detector, log))
+    """`ftcgym replay LOG --detector NAME [--json] [--rate HZ]` (arguments parsed by ftcgym.cli)."""
+    try:
+        # Library chatter goes to stderr: with --json, stdout carries exactly one JSON object.
+        with contextlib.redirect_stdout(sys.stderr):
+            build = _detector_factory(args.detector)  # a wrong name fails before the log is read
+            log = read_log(args.log, rate_hz=args.rate)
+            result = replay(log, build(log))
+    except (OSError, ValueError) as error:
+        print(f"ftcgym replay: {error}", file=sys.stderr)
+        return 2
     print(json.dumps(result) if args.json else format_result(result, log))
     return 0
 
