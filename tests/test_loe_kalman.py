@@ -94,3 +94,16 @@ def test_no_false_alarm_in_a_fault_free_manoeuvring_flight():
     info = _fly_with_detector(33, None, task={"name": "square", "speed": 2.0, "heading_changes": True}, seconds=25)
     assert not info["crashed"] and info["fdd"]["loe_kalman"]["alarm"] is False
     assert np.allclose(info["fdd"]["loe_kalman"]["k_hat"], 1.0, atol=0.1)
+
+
+def test_gymnasium_check_env_on_the_wrapped_env():
+    """The detector's keys and spaces pass the checker; its only remark is its generic advice to check
+    `env.unwrapped`, which would leave the wrapper out."""
+    import warnings
+    from gymnasium.utils.env_checker import check_env
+    env = loe_kalman_wrapper(make_env(wind=LIGHT_WIND))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_env(env, skip_render_check=True)
+    remarks = [str(w.message) for w in caught if "different from the unwrapped version" not in str(w.message)]
+    assert remarks == []

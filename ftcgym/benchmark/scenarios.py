@@ -107,6 +107,19 @@ register(Scenario(
     description="Fault-free 60 s flights: square at 2 m/s with heading changes and speed excitation, "
                 "light turbulence and mean wind; counts false alarms.",
 ))
+# 002 Sec. 5.2: LOE ramps of 0.1/s capped at 0.5 on one pair at 5 s and another at 6 s. On our X frame a pitch
+# pair and a roll pair always share a rotor (left at 0.25, which no controller can fly); the diagonal pairs
+# (r1, r3) and (r2, r4) end, like the paper's "+" pairs, with every rotor at half effectiveness.
+register(Scenario(
+    name="quad-loe-ramp",
+    env_id=QUADROTOR,
+    env_kwargs={"task": "hover", "max_episode_seconds": 14.0, "wind": LIGHT_TURBULENCE,
+                "faults": [{"kind": "loe", "target": [0, 2], "time": 5.0, "magnitude": 0.5, "rate": 0.1},
+                           {"kind": "loe", "target": [1, 3], "time": 6.0, "magnitude": 0.5, "rate": 0.1}]},
+    episodes=4,
+    detector="aekf",
+    description="002 Sec. 5.2: LOE ramps 0.1/s capped at 0.5 on diagonal pairs (r1, r3) at 5 s and (r2, r4) at 6 s.",
+))
 # 004 Sec. 5.1: a 0.5 kg quadcopter (our mueller2014 set) gains 0.5 kg between 40 and 42 s on the square.
 _PAYLOAD = {"vehicle": "mueller2014", "max_episode_seconds": 60.0,
             "wind": {"mean": [1.0, -1.0, 0.0], "turbulence": "light"},

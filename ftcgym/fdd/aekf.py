@@ -2,39 +2,43 @@
 
 Lu, van Kampen, Yu, *Actuator Fault Detection and Diagnosis for Quadrotors* (seeds/002): the rigid-body
 model (eq. 19-27) is augmented with the loss of effectiveness l_i of each rotor as a random-walk state
-(eq. 43-44), estimated by an EKF (eq. 6-18, Joseph-form covariance eq. 18) from position, velocity and
+(eq. 43-44) and estimated by an EKF (eq. 6-18, Joseph-form covariance eq. 18) from position, velocity and
 attitude measurements (eq. 28-36); a threshold on the accumulated innovation raises the alarm (eq. 41-42).
 
-Adaptations of the paper to ftcgym (each also noted where it happens):
-- Frames: NED / FRD (DESIGN.md), so eq. (24) reads m dv_z/dt = -U cos(phi) cos(theta) + m g; the full
-  rotation R(phi, theta, psi) (ZYX) replaces eq. (22)-(24)'s expanded products.
-- Attitude: ZYX Euler angles eta = (phi, theta, psi), as 002 (eq. 34-36 then stay linear, H is a selection
-  matrix and the Joseph update is exact). A quadrotor that does not crash stays far from the pitch
-  singularity (the env ends a flight beyond 60 deg of tilt); the yaw innovation is wrapped to (-pi, pi].
-- Rotational dynamics: 002 eq. (25)-(27) (J eta_ddot = tau) become Euler's equation in body rates
-  J omega_dot = M - omega x J omega, with the rotor moments of 000 eq. (4) (X frame), the drag-torque yaw
-  moment (004 eq. 7 signs), propeller gyroscopic and spin-up torques and rotational damping.
-- Inputs: 002's inputs are PWM commands through a first-order actuator (eq. 37-40). Our ESCs report the
-  rotor speeds Omega_i (obs["rotor_speed"]), i.e. the output of that actuator lag, so they are the inputs:
-  thrust T_i = c_T k_i Omega_i^2 and drag torque c_Q k_i Omega_i^2 with effectiveness k_i = 1 - l_i, the
-  product eq. (40) puts on the actuator input. Over one step the mean of the previous and current Omega_i^2
-  is used; the spin-up torque uses their difference (the momentum change, so ESC noise does not accumulate).
-- Gyro: a measurement of the body rates plus a constant bias (3 random-walk states), not an input. The
-  rotor moments act on the body rates, so the rates must be states for the individual l_i to be
-  observable (as inputs, the gyro would leave only the collective thrust to identify one of four LOEs).
-- Measurements: 002 measures p, v, eta (eq. 28-36); we add the gyro. Position and velocity are
-  sample-and-hold (100 Hz): they update the filter only when their value changes, so one noisy sample is
-  not counted five times.
-- Discretisation: Phi = I + F dt + (F dt)^2 / 2 (eq. 8 to second order), Q_d = Q dt (eq. 10, first term),
-  state propagation by the second-order Taylor step of eq. (6).
-- Detection: eq. (41) as printed, H x - H x_hat, uses the unknown true state; we use the innovation
-  gamma = y - H x_hat (eq. 17), normalised per channel by sqrt(S_jj). Eq. (42)'s accumulation window is an
-  exponential window per channel; the statistic is the mean over channels of the squared, normalised
-  accumulated innovation (chi-square / m, about 1 when the model fits). Isolation: the rotor whose LOE
-  estimate is largest above `isolation_threshold`.
-- LOE estimates are not clipped to [0, 1]: clipping would bias them (002 values their unbiasedness).
+State x = [p (3, NED m), v (3, NED m/s), eta = (phi, theta, psi) (3, rad), omega = (p, q, r) (3, FRD
+rad/s), b_g (3, gyro bias rad/s), l (4, LOE of r1..r4), d (2, horizontal NED acceleration, m/s^2)].
 
-The state x = [p (3, NED m), v (3, NED m/s), eta (3, rad), omega (3, FRD rad/s), b_g (3, rad/s), l (4)].
+Where ftcgym departs from or adapts the paper (also noted at the code):
+- Frames: NED / FRD (DESIGN.md), so eq. (24) reads m dv_z/dt = -U cos(phi) cos(theta) + m g; the full ZYX
+  rotation R(eta) replaces the expanded products of eq. (22)-(24).
+- Attitude as ZYX Euler angles, as 002: eq. (34)-(36) stay linear, so H is a selection matrix and the
+  Joseph update eq. (18) is exact. A quadrotor the env has not declared crashed is within 60 deg of level,
+  far from the pitch singularity; the yaw innovation and state are wrapped to [-pi, pi). (A quaternion
+  with a 3-state error would avoid the singularity at the cost of a nonlinear H and a reset step.)
+- Rotation: eq. (25)-(27) (J eta_ddot = tau) become Euler's equation J omega_dot = M - omega x J omega,
+  with the rotor moments of 000 eq. (4) (X frame), drag torques with the yaw signs of 004 eq. (7),
+  propeller gyroscopic and spin-up torques, and linear damping: the same terms as the simulator's rotors.
+- Inputs: 002's inputs are PWM commands through the first-order actuator of eq. (37)-(39). Our ESCs report
+  the rotor speeds Omega_i (obs["rotor_speed"]), the output of that lag, so they are the inputs: thrust
+  T_i = c_T k_i Omega_i^2 and drag torque c_Q k_i Omega_i^2 with effectiveness k_i = 1 - l_i, the factor
+  eq. (40) puts on the actuator input. The speeds of a sample act over the step that ends at it (as the
+  simulator, which steps its motors before the forces); the spin-up torque uses the speed difference over
+  the step, a momentum change, so ESC noise in it does not accumulate. `command` is not needed.
+- Gyro: a measurement of omega + b_g, not an input. The rotor moments act on the body rates, so the rates
+  must be states for the four l_i to be observable; as inputs, the gyro would leave only the collective
+  thrust, one equation for four unknowns. The bias states keep a constant gyro bias out of l.
+- Wind: not in 002. The detector knows no wind, and the drag of a 1.4 m/s wind (~0.2 m/s^2) alone drove the
+  innovation alarm within 1 s of every windy flight. A horizontal acceleration d (random walk, like l)
+  absorbs it. Only horizontal: a vertical one could not be told from a collective LOE.
+- Measurements: eq. (28)-(36) plus the gyro. Position and velocity are sample-and-hold (100 Hz): they update
+  the filter only when their value changes, so one noisy sample is not counted five times.
+- Discretisation at the constructor's dt: Phi = I + F dt + (F dt)^2 / 2 (eq. 8 to second order),
+  Q_d = Q dt (first term of eq. 10), the state by the second-order Taylor step of eq. (6).
+- Detection: eq. (41) as printed (H x - H x_hat) needs the unknown true state; we use the innovation
+  gamma = y - H x_hat of eq. (17). Eq. (42)'s accumulation: per channel, gamma_j / sqrt(S_jj) is summed
+  over an exponential window and scaled to unit variance; the statistic is the largest |z_j|, compared
+  with T_0. Isolation: the rotor whose LOE estimate is largest above `isolation_threshold`.
+- The LOE estimates are not clipped to [0, 1]: clipping would bias them, and 002 values their unbiasedness.
 """
 from __future__ import annotations
 
@@ -47,9 +51,10 @@ from .base import AlarmLatch
 from .wrapper import DetectorWrapper
 
 GRAVITY = 9.81
-N_X = 19
-POS, VEL, ETA, OMEGA, BIAS, LOE = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15),
-                                   slice(15, 19))
+N_X = 21
+POS, VEL, ETA, OMEGA, BIAS, LOE, DIST = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15),
+                                         slice(15, 19), slice(19, 21))
+PSI = 8
 DEFAULT_YAW_SIGNS = (1.0, -1.0, 1.0, -1.0)  # DESIGN.md / 004 eq. (7)
 
 
@@ -84,58 +89,60 @@ class QuadrotorModel:
 
 
 class AugmentedEkfDetector:
-    """002's augmented EKF: 15 rigid-body/gyro-bias states plus 4 random-walk LOE states; see the module doc.
+    """002's augmented EKF (see the module docstring), fed one sample at a time; plain numpy.
 
-    dt:                  the update interval (s) the model is discretised at (the env's 1 / agent_hz)
+    model:               the vehicle's nominal numbers (`QuadrotorModel`, or use `from_params`)
+    dt:                  the update interval (s) the model is discretised at: one `update` per dt
     model_error:         the detector's c_T is (1 + model_error) times the nominal one (robustness studies)
     loe_walk:            sigma of the LOE random walk w' of eq. (43), 1/sqrt(s): larger tracks faster, noisier
     window:              time constant (s) of the innovation accumulation window (eq. 42)
-    threshold:           T_0 of eq. (42) on the accumulated statistic (about 1 when fault-free)
+    threshold:           T_0 of eq. (42), in standard deviations of the accumulated innovation
     isolation_threshold: LOE estimate above which a rotor may be isolated
-    warmup:              s after the first sample during which no alarm is raised (the filter converges)
+    warmup:              s after the first sample without alarms (the filter settles from its first guess)
+    q_sigma, r_sigma:    overrides of `Q_SIGMA` / `R_SIGMA` entries (e.g. for other sensor noise levels)
+
+    Defaults tuned on seeds 1-6 of the env's default sensors (tests/test_aekf.py reports other seeds).
     """
 
     name = "aekf"
     output_fields = {
-        "loe": (-np.inf, np.inf, (4,)),
-        "loe_std": (0.0, np.inf, (4,)),
-        "innovation": (0.0, np.inf, (1,)),
+        "loe": (-np.inf, np.inf, (4,)),          # l_i estimates (not clipped)
+        "loe_std": (0.0, np.inf, (4,)),          # sqrt(P_ii) of the LOE states
+        "innovation": (0.0, np.inf, (1,)),       # the detection statistic max_j |z_j|
     }
-    # Continuous process noise densities (Q, per second) and measurement noise sigmas (R): tuned on the
-    # env's default sensors (sensors.py) with seeds 1-3, see tests/test_aekf.py.
-    Q_SIGMA = {"pos": 1e-3, "vel": 0.03, "eta": 1e-3, "omega": 1.5, "bias": 1e-3}
+    # Process noise densities, per sqrt(s): unmodelled acceleration (vel), angular acceleration (omega).
+    Q_SIGMA = {"pos": 0.01, "vel": 0.03, "eta": 1e-3, "omega": 1.5, "bias": 1e-3, "dist": 0.1}
+    # Measurement noise sigmas: the env's sensors.py levels (gyro: its noise plus motor vibration).
     R_SIGMA = {"position": 0.01, "velocity": 0.02, "attitude": np.deg2rad(0.2), "gyro": 0.05}
-    P0_SIGMA = {"pos": 0.01, "vel": 0.02, "eta": np.deg2rad(0.5), "omega": 0.05, "bias": 0.01, "loe": 0.05}
+    P0_SIGMA = {"pos": 0.01, "vel": 0.02, "eta": np.deg2rad(0.5), "omega": 0.05, "bias": 0.01, "loe": 0.05,
+                "dist": 0.3}
     KEYS = ("position", "velocity", "attitude", "gyro", "rotor_speed")
 
     def __init__(self, model: QuadrotorModel, dt: float, *, model_error: float = 0.0, loe_walk: float = 0.05,
-                 window: float = 0.5, threshold: float = 4.0, isolation_threshold: float = 0.1,
-                 warmup: float = 1.0):
-        if not (math.isfinite(dt) and dt > 0):
-            raise ValueError(f"dt: must be a finite number > 0, got {dt!r}")
+                 window: float = 0.5, threshold: float = 3.0, isolation_threshold: float = 0.1,
+                 warmup: float = 1.0, q_sigma: dict | None = None, r_sigma: dict | None = None):
+        for name, value in (("dt", dt), ("window", window), ("loe_walk", loe_walk)):
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name}: must be a finite number > 0, got {value!r}")
+        if not (math.isfinite(model_error) and model_error > -1):
+            raise ValueError(f"model_error: must be a finite number > -1, got {model_error!r}")
         self.model, self.dt = model, float(dt)
         self.threshold, self.isolation_threshold, self.warmup = threshold, isolation_threshold, warmup
         self._forget = math.exp(-self.dt / window)
-        self._set_model(model, model_error)
-        q = self.Q_SIGMA
-        q_c = np.concatenate([np.full(3, q["pos"]), np.full(3, q["vel"]), np.full(3, q["eta"]),
-                              np.full(3, q["omega"]), np.full(3, q["bias"]), np.full(4, loe_walk)]) ** 2
-        self.Q = np.diag(q_c * self.dt)  # eq. (10), first term: Q_d = G Q G^T dt with G = I
+        self._use_model(model, model_error)
+        q = _override(self.Q_SIGMA, q_sigma, "q_sigma")
+        q_c = _blocks(q["pos"], q["vel"], q["eta"], q["omega"], q["bias"], loe_walk, q["dist"]) ** 2
+        self.Q = np.diag(q_c * self.dt)                        # eq. (10), first term, G = I
         p0 = self.P0_SIGMA
-        self._P0 = np.diag(np.concatenate([np.full(3, p0["pos"]), np.full(3, p0["vel"]), np.full(3, p0["eta"]),
-                                           np.full(3, p0["omega"]), np.full(3, p0["bias"]),
-                                           np.full(4, p0["loe"])]) ** 2)
-        r = self.R_SIGMA
-        r_all = np.concatenate([np.full(3, r["attitude"]), np.full(3, r["gyro"]),
-                                np.full(3, r["position"]), np.full(3, r["velocity"])]) ** 2
-        # Eq. (28)-(36) plus the gyro: attitude and gyro every step; position and velocity when fresh.
+        self._P0 = np.diag(_blocks(*(p0[k] for k in ("pos", "vel", "eta", "omega", "bias", "loe", "dist"))) ** 2)
+        # Eq. (28)-(36) plus the gyro, ordered so that a step without fresh position/velocity is a prefix:
+        # y = [eta (3), gyro (3) | p (3), v (3)].
+        r = _override(self.R_SIGMA, r_sigma, "r_sigma")
+        self._r = np.repeat([r["attitude"], r["gyro"], r["position"], r["velocity"]], 3) ** 2
+        self.R_full = np.diag(self._r)
         self.H_full = np.zeros((12, N_X))
-        self.H_full[0:3, ETA] = np.eye(3)
-        self.H_full[3:6, OMEGA] = np.eye(3)
-        self.H_full[3:6, BIAS] = np.eye(3)
-        self.H_full[6:9, POS] = np.eye(3)
-        self.H_full[9:12, VEL] = np.eye(3)
-        self.R_full, self._r = np.diag(r_all), r_all
+        for row, block in ((0, ETA), (3, OMEGA), (3, BIAS), (6, POS), (9, VEL)):
+            self.H_full[row:row + 3, block] = np.eye(3)
         self._I = np.eye(N_X)
         self.reset()
 
@@ -144,7 +151,8 @@ class AugmentedEkfDetector:
         """A detector for a `QuadrotorParams`-like object (attributes read by name)."""
         return cls(QuadrotorModel.from_params(params), dt, **kwargs)
 
-    def _set_model(self, m: QuadrotorModel, model_error: float) -> None:
+    def _use_model(self, m: QuadrotorModel, model_error: float) -> None:
+        """Constants of f(x, u), with c_T scaled by (1 + model_error)."""
         r = np.asarray(m.rotor_positions, dtype=float)
         self.c_T = m.thrust_coefficient * (1.0 + model_error)
         self.J = np.asarray(m.inertia, dtype=float)
@@ -156,9 +164,10 @@ class AugmentedEkfDetector:
         self.J_tuple, self.d_rot_tuple = tuple(m.inertia), tuple(m.rotational_drag)
         self._A_over_J = -self.A / self.J[:, None]
         self._gravity = np.array((0.0, 0.0, GRAVITY))
-        self._zeros7 = np.zeros(7)
+        self._zeros9 = np.zeros(9)
         self._F0 = np.zeros((N_X, N_X))
         self._F0[POS, VEL] = np.eye(3)
+        self._F0[VEL, DIST] = np.eye(3)[:, :2]
 
     # ------------------------------------------------------------------------------------ protocol
     def reset(self) -> None:
@@ -169,20 +178,22 @@ class AugmentedEkfDetector:
         self._Omega = None
         self._held = None
         self._acc = np.zeros(12)       # accumulated normalised innovation per channel (eq. 42)
-        self._acc_w = np.ones(12)      # sum of squared window weights: var of _acc when the model fits
+        self._acc_w = np.ones(12)      # sum of squared window weights: var of _acc if the model fits
         self.z = np.zeros(12)
         self.statistic = 0.0
 
     def update(self, readings: dict, time: float, command: np.ndarray | None = None) -> None:
         """One sample: predict from the previous one (eq. 6-12), correct with this one (eq. 13-18)."""
         z = _finite(readings, self.KEYS, command)
+        if not math.isfinite(time):
+            raise ValueError(f"time: must be finite, got {time!r}")
         Omega = z["rotor_speed"]
         held = z["position"].tobytes() + z["velocity"].tobytes()
         if self._start is None:
             self._initialise(z, time)
         else:
             self.predict(Omega)
-            fresh = held != self._held                         # sample-and-hold: a new sample, or the old one
+            fresh = held != self._held                       # sample-and-hold: a new sample, or the old one
             self.correct(_measurement(z, fresh))
             self._detect(time)
         self._Omega, self._held = Omega, held
@@ -203,80 +214,87 @@ class AugmentedEkfDetector:
         self.x[OMEGA] = z["gyro"]
 
     def predict(self, Omega: np.ndarray) -> None:
-        """Eq. (6)-(12): state by a second-order Taylor step, P by Phi P Phi^T + Q_d."""
+        """Eq. (6)-(12): x(k+1|k) by a second-order Taylor step, P(k+1|k) = Phi P Phi^T + Q_d."""
         dt = self.dt
-        Omega_prev = self._Omega if self._Omega is not None else Omega
-        f, F = self.dynamics(self.x, Omega, (Omega - Omega_prev) / dt)
+        f, F = self.dynamics(self.x, Omega, (Omega - self._Omega) / dt)   # F at x(k|k), eq. (9)
         Fdt = F * dt
-        self.x = self.x + dt * f + (0.5 * dt) * (Fdt @ f)     # eq. (6), second order
-        self.x[8] = _wrap(self.x[8])
-        Phi = self._I + Fdt + 0.5 * (Fdt @ Fdt)          # eq. (8), second order
-        self.P = Phi @ self.P @ Phi.T + self.Q               # eq. (7)
+        self.x = self.x + dt * f + (0.5 * dt) * (Fdt @ f)    # eq. (6)
+        self.x[PSI] = _wrap(self.x[PSI])
+        Phi = self._I + Fdt + 0.5 * (Fdt @ Fdt)              # eq. (8), to second order
+        P = Phi @ self.P @ Phi.T + self.Q                    # eq. (7)
+        self.P = 0.5 * (P + P.T)                             # rounding must not accumulate asymmetry
 
     def correct(self, y: np.ndarray) -> None:
-        """Eq. (13)-(18) with the linear measurement y = H x + v: attitude, gyro [, position, velocity]."""
+        """Eq. (13)-(18) for y = H x + v: [eta, gyro] or [eta, gyro, p, v] (H constant, so eq. 15 is exact)."""
         m = y.size
         H, R = self.H_full[:m], self.R_full[:m, :m]
-        gamma = y - H @ self.x                                # eq. (17)
-        gamma[2] = _wrap(gamma[2])                            # yaw innovation across +-pi
+        gamma = y - H @ self.x                               # eq. (17)
+        gamma[2] = _wrap(gamma[2])                           # yaw innovation across +-pi
         PHt = self.P @ H.T
-        S = H @ PHt + R                                       # eq. (14), V in the paper
-        S_inv = np.linalg.inv(S)
-        K = PHt @ S_inv                                       # eq. (13)
-        self.x = self.x + K @ gamma                           # eq. (16)
-        self.x[8] = _wrap(self.x[8])
+        S = H @ PHt + R                                      # eq. (14), V in the paper
+        K = PHt @ np.linalg.inv(S)                           # eq. (13)
+        self.x = self.x + K @ gamma                          # eq. (16)
+        self.x[PSI] = _wrap(self.x[PSI])
         A = self._I - K @ H
-        self.P = A @ self.P @ A.T + (K * self._r[:m]) @ K.T   # eq. (18), Joseph form (R diagonal)
+        P = A @ self.P @ A.T + (K * self._r[:m]) @ K.T       # eq. (18), Joseph form (R is diagonal)
+        self.P = 0.5 * (P + P.T)
         self.gamma, self.S = gamma, S
 
     def dynamics(self, x: np.ndarray, Omega: np.ndarray, Omega_dot: np.ndarray):
-        """f(x, u) of eq. (43) and its Jacobian F (eq. 9), NED / FRD; inputs the rotor speeds and their rate.
-
-        Scalars are plain floats and blocks are built whole: numpy's per-call cost dominates at this size.
-        """
+        """f(x, u) of eq. (43) and its Jacobian F (eq. 9); inputs the rotor speeds Omega and their rate."""
         Omega2 = Omega * Omega
-        v = x[VEL]
+        k = 1.0 - x[LOE]                                      # effectiveness: eq. (40)'s (1 - l_i) factor
         phi, theta, psi, p, q, r = x[6:12].tolist()
-        k = 1.0 - x[LOE]                                       # effectiveness, eq. (40): (1 - l_i) input
-        kOmega2 = k * Omega2
-        m, J = self.mass, self.J
-        # Translation, eq. (19)-(24) in NED: p_dot = v; m v_dot = m g e3 + R F_b.
-        R = _rotation(phi, theta, psi)
-        a_b = v @ R                                            # R^T v: body airspeed (no wind known)
+        v_dot, dv_dv, dv_deta, dv_dl = self._translation(x[VEL], phi, theta, psi, k, Omega, Omega2)
+        eta_dot, deta_deta, W = _euler_kinematics(phi, theta, p, q, r)
+        w_dot, dw_dw = self._rotational(p, q, r, k * Omega2, Omega, Omega_dot)
+        v_dot[:2] += x[DIST]
+        f = np.concatenate((x[VEL], v_dot, eta_dot, w_dot, self._zeros9))  # biases, LOE: eq. (43) random walks
+        F = self._F0.copy()                                   # dp_dot/dv = I
+        F[VEL, VEL], F[VEL, ETA], F[VEL, LOE] = dv_dv, dv_deta, dv_dl
+        F[ETA, ETA], F[ETA, OMEGA] = deta_deta, W
+        F[OMEGA, OMEGA] = dw_dw
+        F[OMEGA, LOE] = self._A_over_J * Omega2              # dM/dl_i = -A_i Omega_i^2
+        return f, F
+
+    def _translation(self, v, phi, theta, psi, k, Omega, Omega2):
+        """Eq. (22)-(24) in NED: m v_dot = m g e3 + R F_b; F_b = thrust and linear body and rotor drag.
+
+        Plain floats and whole blocks: numpy's per-call cost, not arithmetic, dominates at this size.
+        """
+        mass = self.mass
+        R = _rotation_matrix(phi, theta, psi)
+        a_b = v @ R                                           # R^T v, body airspeed (no wind is known)
         rotor_drag = self.k_d * float(k @ Omega)
         c = -np.array((self.d_body[0] + rotor_drag, self.d_body[1] + rotor_drag, self.d_body[2]))
         F_b = c * a_b
-        F_b[2] -= self.c_T * float(kOmega2.sum())
+        F_b[2] -= self.c_T * float(k @ Omega2)
         RF = R @ F_b
         RCRt = (R * c) @ R.T
         # d(R u)/d eta_j = n_j x (R u) with n_phi = R e1, n_theta = Rz e2, n_psi = e3 (ZYX), so the eta
         # columns are n_j x RF + RCR^T (v x n_j) = (RCR^T [v]x - [RF]x) n_j.
         N = np.array(((R[0, 0], -math.sin(psi), 0.0), (R[1, 0], math.cos(psi), 0.0), (R[2, 0], 0.0, 1.0)))
-        dv_deta = (RCRt @ _skew(v) - _skew(RF)) @ N / m
+        dv_deta = (RCRt @ _skew(v) - _skew(RF)) @ N / mass
         dFb_dl = np.vstack((self.k_d * a_b[0] * Omega, self.k_d * a_b[1] * Omega, self.c_T * Omega2))
-        # Attitude kinematics eta_dot = W(eta) omega (ZYX Euler rates).
-        eta_dot, deta_deta, W = _euler_kinematics(phi, theta, p, q, r)
-        # Rotation, eq. (25)-(27) as Euler's equation: J omega_dot = M - omega x J omega.
+        return RF / mass + self._gravity, RCRt / mass, dv_deta, R @ dFb_dl / mass
+
+    def _rotational(self, p, q, r, kOmega2, Omega, Omega_dot):
+        """Eq. (25)-(27) as Euler's equation J omega_dot = M - omega x J omega, and d(omega_dot)/d omega.
+
+        M: rotor thrust and drag moments A (k Omega^2), propeller gyroscopic moment -omega x (0, 0, h),
+        the reaction to the propellers' spin-up, linear damping: the simulator's terms (rotors.py).
+        """
         Jx, Jy, Jz = self.J_tuple
         dx, dy, dz = self.d_rot_tuple
-        h = -self.I_p * float(self.s @ Omega)                  # propeller angular momentum along body z
+        h = -self.I_p * float(self.s @ Omega)                 # propellers' angular momentum along body z
         M = self.A @ kOmega2
-        M[0] += -dx * p - q * h - q * r * (Jz - Jy)            # gyroscopic -Omega x (0, 0, h); -omega x J omega
+        M[0] += -dx * p - q * h - q * r * (Jz - Jy)
         M[1] += -dy * q + p * h - p * r * (Jx - Jz)
-        M[2] += -dz * r + self.I_p * float(self.s @ Omega_dot) - p * q * (Jy - Jx)  # spin-up reaction
+        M[2] += -dz * r + self.I_p * float(self.s @ Omega_dot) - p * q * (Jy - Jx)
         dw_dw = np.array(((-dx / Jx, (-h - r * (Jz - Jy)) / Jx, -q * (Jz - Jy) / Jx),
                           ((h - r * (Jx - Jz)) / Jy, -dy / Jy, -p * (Jx - Jz) / Jy),
                           (-q * (Jy - Jx) / Jz, -p * (Jy - Jx) / Jz, -dz / Jz)))
-        f = np.concatenate((v, RF / m + self._gravity, eta_dot, M / J, self._zeros7))
-        F = self._F0.copy()                                    # p_dot = v; biases and LOE: zero drift
-        F[VEL, VEL] = RCRt / m
-        F[VEL, ETA] = dv_deta
-        F[VEL, LOE] = R @ dFb_dl / m
-        F[ETA, ETA] = deta_deta
-        F[ETA, OMEGA] = W
-        F[OMEGA, OMEGA] = dw_dw
-        F[OMEGA, LOE] = self._A_over_J * Omega2               # dM/dl_i = -A_i Omega_i^2
-        return f, F
+        return M / self.J, dw_dw
 
     # ------------------------------------------------------------------------------------ detection
     def _detect(self, time: float) -> None:
@@ -286,10 +304,12 @@ class AugmentedEkfDetector:
         divided by the root of the summed squared weights it is N(0, 1) while the model fits, and a fault
         that the LOE random walk has not yet absorbed drives it away from zero.
         """
-        m = self.gamma.size
-        lam = self._forget
-        self._acc[:m] = lam * self._acc[:m] + self.gamma / np.sqrt(np.diag(self.S))
-        self._acc_w[:m] = lam * lam * self._acc_w[:m] + 1.0
+        m = self.gamma.size                                    # channels measured now (position: 100 Hz)
+        lam = self._forget                                     # the window decays in time, not in samples
+        self._acc *= lam
+        self._acc[:m] += self.gamma / np.sqrt(np.diag(self.S))
+        self._acc_w *= lam * lam
+        self._acc_w[:m] += 1.0
         self.z = self._acc / np.sqrt(self._acc_w)
         self.statistic = float(np.abs(self.z).max())
         if self.statistic >= self.threshold and time - self._start >= self.warmup:
@@ -324,6 +344,18 @@ def _finite(readings: dict, keys, command) -> dict:
     return z
 
 
+def _override(defaults: dict, overrides: dict | None, name: str) -> dict:
+    unknown = set(overrides or {}) - set(defaults)
+    if unknown:
+        raise ValueError(f"{name}: unknown key(s) {sorted(unknown)}; accepted: {sorted(defaults)}")
+    return {**defaults, **(overrides or {})}
+
+
+def _blocks(pos, vel, eta, omega, bias, loe, dist) -> np.ndarray:
+    """A per-state vector from one value per block of x."""
+    return np.repeat([pos, vel, eta, omega, bias, loe, dist], [3, 3, 3, 3, 3, 4, 2]).astype(float)
+
+
 def _measurement(z: dict, fresh: bool) -> np.ndarray:
     parts = [_euler(z["attitude"]), z["gyro"]]
     if fresh:
@@ -339,7 +371,7 @@ def _euler(q) -> np.ndarray:
                      math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))])
 
 
-def _rotation(phi: float, theta: float, psi: float) -> np.ndarray:
+def _rotation_matrix(phi: float, theta: float, psi: float) -> np.ndarray:
     """Body (FRD) -> world (NED) rotation Rz(psi) Ry(theta) Rx(phi)."""
     cf, sf, ct, st, cp, sp = (math.cos(phi), math.sin(phi), math.cos(theta), math.sin(theta),
                               math.cos(psi), math.sin(psi))

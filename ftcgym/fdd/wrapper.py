@@ -13,10 +13,11 @@ from gymnasium import spaces
 from .base import Detector
 
 
-class DetectorWrapper(gym.ObservationWrapper):
+class DetectorWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
     """Feed `detector` each observation; add its outputs to the observation and its status to `info`."""
 
     def __init__(self, env: gym.Env, detector: Detector):
+        gym.utils.RecordConstructorArgs.__init__(self, detector=detector)  # lets env.spec describe the wrapper
         super().__init__(env)
         if not isinstance(env.observation_space, spaces.Dict):
             raise ValueError("DetectorWrapper: the env's observation_space must be a Dict of sensor readings")
