@@ -112,14 +112,26 @@ class NominalController:
     def mix(self, thrust: float, torque) -> np.ndarray:
         """Normalised rotor commands for a collective thrust (N) and body torques (N m).
 
-        When the rotors saturate, yaw torque is given up first (it matters least for staying aloft).
+        When the rotors saturate, yaw torque is given up first (it matters least for staying aloft): only the
+        share of it that fits between the rotor limits is kept.
         """
-        w2 = self._mixer_inverse @ np.array([thrust, torque[0], torque[1], torque[2]])
-        if w2.min() < self._w2_min or w2.max() > self._w2_max:
-            w2 = self._mixer_inverse @ np.array([thrust, torque[0], torque[1], 0.0])
+        base = self._mixer_inverse @ np.array([thrust, torque[0], torque[1], 0.0])
+        yaw = self._mixer_inverse[:, 3] * torque[2]
+        w2 = base + _largest_fitting_share(base, yaw, self._w2_min, self._w2_max) * yaw
         omega = np.sqrt(np.clip(w2, self._w2_min, self._w2_max))
         p = self.params
         return np.clip((omega - p.omega_min) / (p.omega_max - p.omega_min), 0.0, 1.0).astype(np.float32)
+
+
+def _largest_fitting_share(base: np.ndarray, extra: np.ndarray, low: float, high: float) -> float:
+    """The largest s in [0, 1] with low <= base + s extra <= high for every rotor that base leaves in range."""
+    share = 1.0
+    for b, e in zip(base, extra):
+        if e > 0 and b < high:
+            share = min(share, (high - b) / e)
+        elif e < 0 and b > low:
+            share = min(share, (low - b) / e)
+    return max(share, 0.0)
 
 
 def allocation_matrix(params: QuadrotorParams) -> np.ndarray:

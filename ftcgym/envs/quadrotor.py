@@ -148,8 +148,10 @@ class QuadrotorEnv(gym.Env):
         self.time = self._physics_steps / self.physics_hz  # counted, so it never drifts
         self._apply_faults()
         self._read_state()
-        # An IMU measures the mean specific force over the sample interval: (dv/dt - g) in the body frame.
-        self._specific_force = self._R.T @ ((self._vel - v_before) / dt - self._gravity)
+        # An IMU measures the specific force over the interval: (dv/dt - g) in the body frame. PyBullet's
+        # semi-implicit step applies the force set with the attitude R at the step's start, so R (not the
+        # attitude after the step) maps it back exactly; contact forces are included.
+        self._specific_force = R.T @ ((self._vel - v_before) / dt - self._gravity)
         self._v_before = v_before
 
     def _read_state(self) -> None:
