@@ -61,7 +61,7 @@ def kalman_step(x, P, z, H, Q, R, k_bounds=(0.0, 1.5)):
     y = z - H @ x                               # innovation
     S = R + H @ P @ H.T
     K = np.linalg.solve(S, H @ P).T             # K = P H^T S^-1 (S, P symmetric)
-    x = np.clip(x + K @ y, *k_bounds)
+    x = np.minimum(np.maximum(x + K @ y, k_bounds[0]), k_bounds[1])
     P = (np.eye(len(x)) - K @ H) @ P            # P_k|k = (I - K H) P_k|k-1
     return x, 0.5 * (P + P.T)
 
@@ -130,8 +130,10 @@ class LoeKalmanDetector:
         self._alarm.reset()
 
     def update(self, readings: dict, time: float, command=None) -> None:
-        gyro, accel, omega = (_finite(readings, key) for key in ("gyro", "accel", "rotor_speed"))
-        filtered = self._filter(np.concatenate((gyro[:2], accel[2:3], omega)))
+        sample = np.concatenate((readings["gyro"][:2], readings["accel"][2:3], readings["rotor_speed"]))
+        if not np.isfinite(sample).all():
+            _reject_non_finite(readings)
+        filtered = self._filter(sample)
         rates, a_z, omega_f = filtered[:2], filtered[2], filtered[3:]
         previous, self._previous_rates = self._previous_rates, rates
         omega2 = omega_f * omega_f
@@ -170,8 +172,9 @@ def loe_kalman_wrapper(env, G="vehicle", G_scale: float = 1.0, **kwargs):
     return DetectorWrapper(env, LoeKalmanDetector(dt, G=tuple(np.asarray(G) * G_scale), **kwargs))
 
 
-def _finite(readings: dict, key: str) -> np.ndarray:
-    value = np.asarray(readings[key], dtype=float)
-    if not np.all(np.isfinite(value)):
-        raise ValueError(f"loe_kalman: reading {key!r} is not finite: {value.tolist()}")
-    return value
+def _reject_non_finite(readings: dict) -> None:
+    """Raise a ValueError naming the first reading with a NaN or infinity."""
+    for key in ("gyro", "accel", "rotor_speed"):
+        value = np.asarray(readings[key], dtype=float)
+        if not np.all(np.isfinite(value)):
+            raise ValueError(f"loe_kalman: reading {key!r} is not finite: {value.tolist()}")
