@@ -1,0 +1,119 @@
+"""IvChangeDetector (004): the IV cost recursion, detection on a known submodel, real flights, input checks."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from conftest import LIGHT_WIND, make_env
+from ftcgym.agents import make_policy
+from ftcgym.envs.vehicles import make_params
+from ftcgym.fdd.base import Detector
+from ftcgym.fdd.iv_change import IvChangeDetector, IvCost, SixDofResidual, iv_change_wrapper
+
+# 004 Table 1: m = 0.5 kg, lambda_1 = 0.36 N s/m (c = lambda_1 / m = 0.72 1/s).
+MASS, LAMBDA_1, DT = 0.5, 0.36, 0.002
+
+
+def batch_cost(Z, r, lam, n_w, t):
+    """004 eq. (30) summed directly: S(t) = sum_{i=t-N_w+1}^{t} lam^(t-i) Z(i) r(i), J = ||S||."""
+    i = np.arange(max(0, t - n_w + 1), t + 1)
+    S = np.einsum("i,imd->md", lam ** (t - i) * 1.0, Z[i] * r[i][:, :, None])
+    return np.linalg.norm(S, axis=1)
+
+
+def test_iv_cost_recursion_matches_the_batch_sum_of_eq_30():
+    rng = np.random.default_rng(3)
+    lam, n_w, n = 0.97, 50, 400
+    Z, r = rng.normal(size=(n, 2, 3)), rng.normal(size=(n, 2))
+    cost = IvCost(lam, n_w, (2, 3))
+    worst = 0.0
+    for t in range(n):
+        J = cost.update(Z[t], r[t])
+        worst = max(worst, np.abs(J - batch_cost(Z, r, lam, n_w, t)).max())
+    assert worst < 1e-10
+
+
+def synthetic_flight(seconds: float, step_time: float, seed: int = 0):
+    """Readings (500 Hz) of a closed loop that obeys the submodel (28) exactly, with 004 Table 1's c.
+
+    Along x: a PD position loop with a lagged thrust tilt tracks a two-sine reference (other gains than
+    the detector's reference model); v' = g tau - c (v - w), a_x = -c (v - w) + white noise, q = -tau_x'.
+    w is coloured wind (first-order, 5 s, 0.1 m/s) on both axes. The mass steps 0.5 -> 1 kg at step_time.
+    """
+    rng = np.random.default_rng(seed)
+    g, kp, kd, k_att = 9.81, 1.2, 2.0, 9.0
+    a_w = math.exp(-DT / 5.0)
+    s_w = 0.1 * math.sqrt(1.0 - a_w * a_w)
+    x, v, tau, w = np.zeros(2), np.array([2.25, 0.0]), np.zeros(2), np.zeros(2)
+    for k in range(int(round(seconds / DT))):
+        t = k * DT
+        c = LAMBDA_1 / (MASS if t < step_time else 2 * MASS)
+        x_ref = np.array([2.0 * math.sin(0.6 * t) + 0.5 * math.sin(2.1 * t), 0.0])
+        v_ref = np.array([1.2 * math.cos(0.6 * t) + 1.05 * math.cos(2.1 * t), 0.0])
+        dtau = k_att * ((kp * (x_ref - x) + kd * (v_ref - v)) / g - tau)
+        accel = -c * (v - w) + rng.normal(0.0, 0.01, 2)
+        yield {"gyro": np.array([dtau[1], -dtau[0], 0.0]), "accel": np.array([*accel, -g]),
+               "reference_position": np.array([*x_ref, -5.0]), "reference_velocity": np.array([*v_ref, 0.0]),
+               "reference_yaw": np.array([0.0])}, t
+        x, v, tau = x + DT * v, v + DT * (g * tau - c * (v - w)), tau + DT * dtau
+        w = a_w * w + s_w * rng.normal(size=2)
+
+
+@pytest.mark.parametrize("step_time", [30.0, None])
+def test_synthetic_mass_step_is_detected_and_nothing_before(step_time):
+    detector = IvChangeDetector(MASS, LAMBDA_1, DT, threshold=3e-3)
+    J_before = 0.0
+    for readings, t in synthetic_flight(40.0, step_time or np.inf):
+        detector.update(readings, t)
+        if detector.warmup <= t < (step_time or np.inf):
+            J_before = max(J_before, detector.J.max())
+    status = detector.status()
+    if step_time is None:
+        assert not status["alarm"] and J_before < 1.5e-3          # fault-free: J stays 2x below threshold
+    else:
+        assert J_before < 1.5e-3
+        assert status["alarm"] and step_time < status["alarm_time"] < step_time + 4.0
+    assert status["isolated"] is None
+
+
+@pytest.mark.parametrize("seed", [1000, 1001])
+def test_real_flight_payload_change_alarms_after_onset_only(seed):
+    """004 Sec. 5.1 with heading changes (issue 3's scenario, cut at 50 s): +0.5 kg over 2 s from 40 s.
+
+    Seeds 1000, 1001 are tuning seeds (after the accelerometer fix), so this pins the tuned behaviour, it
+    does not measure it: on held-out seeds this variant gives 8/10 (100-109) and 7/10 (0-9) alarms
+    after onset with none before, the variant without heading changes 3/10 and 3/10 (`plots_iv`)."""
+    onset = 40.0
+    env = iv_change_wrapper(make_env(vehicle="mueller2014", wind=LIGHT_WIND, max_episode_seconds=onset + 10.0,
+                                     task={"name": "square", "altitude": 8.0, "heading_changes": True},
+                                     faults=[{"kind": "payload", "time": onset, "magnitude": 0.5, "duration": 2.0}]))
+    obs, info = env.reset(seed=seed)
+    policy = make_policy("nominal", env)
+    policy.reset(obs, info)
+    assert env.observation_space.contains(obs)
+    while True:
+        obs, _, terminated, truncated, info = env.step(policy.act(obs, info))
+        if terminated or truncated:
+            break
+    env.close()
+    status = info["fdd"]["iv_change"]
+    assert not info["crashed"]
+    assert status["alarm"] and onset < status["alarm_time"] < onset + 10.0
+    assert obs["fdd/iv_change/J"].shape == (2,) and obs["fdd/iv_change/residual"].shape == (2,)
+
+
+def test_protocol_and_non_finite_readings():
+    detector = IvChangeDetector(MASS, LAMBDA_1, DT)
+    assert isinstance(detector, Detector) and detector.name == "iv_change"
+    readings, t = next(synthetic_flight(1.0, np.inf))
+    detector.update(readings, t)
+    assert set(detector.outputs()) == set(detector.output_fields)
+    for key in ("gyro", "accel", "reference_position"):
+        bad = {**readings, key: np.array([0.0, np.nan, 0.0])}
+        with pytest.raises(ValueError, match=key):
+            detector.update(bad, t + DT)
+    six_dof = SixDofResidual(make_params("mueller2014"), DT)
+    with pytest.raises(ValueError, match="accel"):
+        six_dof.update({"gyro": np.zeros(3), "accel": np.array([np.inf, 0.0, 0.0]), "rotor_speed": np.zeros(4)})
