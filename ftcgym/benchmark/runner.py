@@ -33,10 +33,13 @@ def episode_seed(seed: int, index: int) -> int:
 
 
 def policy_view(info: dict, policy) -> dict:
-    """A copy of `info` without ground truth; an oracle (`uses_true_onset`) also gets the true onset."""
+    """A copy of `info` without ground truth; an oracle (`uses_true_onset`) also gets the true onset and,
+    once it has happened, the faulty target."""
     view = {key: value for key, value in info.items() if key not in PRIVATE_INFO_KEYS}
     if getattr(policy, "uses_true_onset", False):
-        view["oracle_onset_time"] = info["fault"]["onset_time"]
+        onset = info["fault"]["onset_time"]
+        view["oracle_onset_time"] = onset
+        view["oracle_fault_target"] = info["fault"]["target"] if onset is not None else None
     return view
 
 

@@ -5,11 +5,14 @@ flown by default, and the detector whose alarm the benchmark scores. Add one wit
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 QUADROTOR = "ftcgym/Quadrotor-v0"
 LIGHT_TURBULENCE = {"mean": [0.0, 0.0, 0.0], "turbulence": "light"}
+# Rotor-loss scenarios fly the fault-unaware controller, spin recovery on the detector's alarm, and the oracle
+# that switches at the true onset (an upper bound: the gap to ftc-spin is the price of detection).
+ROTOR_LOSS_POLICIES = ("nominal", "ftc-spin", "oracle-spin")
 
 
 @dataclass(frozen=True)
@@ -82,6 +85,7 @@ register(Scenario(
     env_id=QUADROTOR,
     env_kwargs={"task": "hover", "max_episode_seconds": 10.0, "wind": LIGHT_TURBULENCE,
                 "faults": "random:rotor_loss"},
+    policies=ROTOR_LOSS_POLICIES,
     episodes=8,
     detector="loe_kalman",
     description="Quadrotor hover in light turbulence; one random rotor loses its propeller at 2-5 s.",
@@ -92,11 +96,16 @@ register(Scenario(
     env_id=QUADROTOR,
     env_kwargs={"task": {"name": "square", "speed": 2.5}, "max_episode_seconds": 14.0, "wind": LIGHT_TURBULENCE,
                 "faults": [{"kind": "rotor_loss", "target": "random", "time": [4.0, 10.0]}]},
+    policies=ROTOR_LOSS_POLICIES,
     episodes=4,
     detector="loe_kalman",
     description="Quadrotor flying the square at 2.5 m/s in light turbulence; a random rotor is lost at 4-10 s.",
     default=True,
 ))
+for _base in ("quad-rotor-loss-hover", "quad-rotor-loss-maneuver"):  # the same flights on Mueller's vehicle
+    register(replace(SCENARIOS[_base], name=f"{_base}-mueller", episodes=4,
+                     env_kwargs={**SCENARIOS[_base].env_kwargs, "vehicle": "mueller2014"},
+                     description=SCENARIOS[_base].description.replace("Quadrotor", "mueller2014 quadrotor", 1)))
 register(Scenario(
     name="quad-no-fault-long",
     env_id=QUADROTOR,

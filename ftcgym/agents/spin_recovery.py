@@ -1,0 +1,478 @@
+"""Flight after the loss of one propeller: give up yaw, spin, and control the primary axis.
+
+`SpinRecoveryController` flies the relaxed hover of Mueller & D'Andrea ("Stability and control of a
+quadrocopter despite the complete loss of one, two, or three propellers", ICRA 2014; 001 Part II App. B;
+`relaxed_hover.py`). The output is Sun et al.'s reduced attitude ("High-speed flight of quadrotor despite
+loss of single rotor", RA-L 2018): the primary axis n_B = R^T n_des, the world direction the vehicle should
+spin about, seen in the body; its x and y components are driven to those of the equilibrium axis n_bar.
+
+Per agent step:
+1. Outer loop (`_force_command`): position PD + integral on the centre of the small circle the spinning
+   vehicle flies -> desired force F = m (a - g) -> n_des = F / |F| (tilt-limited) and the collective
+   thrust from the vertical balance T R_33 = -F_z.
+2. Inner loop (`ScheduledAxisLqr`): LQR on the linearised body-frame dynamics of (p, q, n_x, n_y) as
+   Mueller & D'Andrea, plus the rotor forces' lag, gain-scheduled on the yaw rate while the spin builds
+   up. We tried the model inversion (NDI) of Sun et al.'s output first: it holds the equilibrium, but it
+   cancels the gyroscopic coupling that is the only way to hold the failed rotor's side up at low spin, and
+   lost 50-70 deg of axis after each switch (see the issue 4 report).
+3. Forces -> rotor speeds f = c_T omega^2 (App. B eq. 10) -> normalised commands; the failed rotor idles.
+
+Only observations are used (gyro, attitude, position, velocity, rotor_speed, reference_*) and the failed
+rotor index given to `engage`. `SpinAfterAlarmPolicy` (`ftc-spin`) and `OracleSpinPolicy` (`oracle-spin`)
+wrap it with the nominal controller for the flight before the fault.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import solve_continuous_are
+
+from ..envs.frames import cross, rotation_matrix
+from ..envs.sensors import GYRO_LIMIT
+from ..envs.vehicles import GRAVITY, YAW_SIGNS, QuadrotorParams
+from .quadrotor_control import UP, NominalController
+from .relaxed_hover import body_moment, relaxed_hover_equilibrium, rotational_drag_moment, rotor_roles
+
+#: Force ratio rho = f_opposite / f_adjacent flown per vehicle; others get `choose_rho`.
+DEFAULT_RHO = {"mueller2014": 0.5}   # Mueller & D'Andrea's choice
+
+
+@dataclass
+class SpinRecoveryGains:
+    rho: float | None = None                   # force ratio of the equilibrium; None: DEFAULT_RHO / choose_rho
+    # outer loop
+    position: tuple = (1.2, 1.2, 4.0)          # 1/s^2, acceleration per metre
+    velocity: tuple = (1.6, 1.6, 3.5)          # 1/s
+    position_integral: tuple = (0.3, 0.3, 2.0)  # 1/s^3
+    integral_limit: float = 2.0                # m/s^2
+    integral_zone: float = 0.3                 # m, position error inside which the integral runs
+    max_axis_tilt_deg: float = 20.0            # n_des from vertical
+    max_horizontal_speed: float = 2.0          # m/s, cap on the velocity command
+    gyro_cutoff_hz: float = 60.0               # first-order low-pass against motor vibration
+    # inner loop (ScheduledAxisLqr)
+    schedule_power: float = 2.0                # target axis leans toward n_bar as (r / r_bar)^power
+    boost_until: float = 0.5                   # below this share of r_bar the adjacent pair runs flat out
+    lqr_axis_weight: float = 1000.0            # 1/rad^2 on n_x, n_y errors
+    lqr_axis_floor: float = 1.0                # share of the axis weight at r = 0, rising as (r / r_bar)^2
+    lqr_rate_weight: float = 5.0               # s^2/rad^2 on p, q errors
+    lqr_force_weight: float = 0.1              # 1/N^2 on rotor-force errors
+    lqr_input_weight: float = 1.0              # 1/N^2 on the two zero-thrust force changes
+    lqr_opposite_weight: float = 1.0           # extra weight on the opposite rotor's input at r = 0
+    balance_idle: bool = False                 # operating point with the opposite rotor at idle (see _idle_balance)
+    # landing
+    landing_speed: float = 0.4                 # m/s, descent of `land()` above 1 m (<= 0.5 m/s)
+    touchdown_speed: float = 0.25              # m/s, descent in the last metre
+    touchdown_margin: float = 0.15             # m above the resting height where a stop counts as touchdown
+
+
+#: Per-vehicle departures from the defaults, tuned on seeds 1000+. The Bebop 2's idle speed leaves its
+#: opposite rotor a moment six times Mueller's (0.19 N at 314 rad/s: 20 rad/s^2 against 3.4), too much to
+#: leave to the LQR at low spin: it gets the idle balance, an LQR that leaves that rotor alone while the spin
+#: builds up, and little axis weight before the gyroscopic stiffness exists.
+VEHICLE_GAINS = {"bebop2": {"balance_idle": True, "lqr_opposite_weight": 1000.0, "lqr_axis_floor": 0.01}}
+
+
+def gains_for(params: QuadrotorParams) -> SpinRecoveryGains:
+    """The default gains with the vehicle's entries of VEHICLE_GAINS applied."""
+    return SpinRecoveryGains(**VEHICLE_GAINS.get(params.name, {}))
+
+
+def choose_rho(params: QuadrotorParams, failed_rotor: int = 3) -> float:
+    """Mueller & D'Andrea's 0.5 for their vehicle; else the smallest rho >= 0.5 whose relaxed hover fits the
+    rotor limits and keeps the yaw rate 10% inside the gyro's range (the controller must measure the spin)."""
+    if params.name in DEFAULT_RHO:
+        return DEFAULT_RHO[params.name]
+    for rho in np.arange(0.5, 3.0, 0.05):
+        try:
+            eq = relaxed_hover_equilibrium(params, float(rho), failed_rotor=failed_rotor)
+        except ValueError:
+            continue
+        if abs(eq["yaw_rate"]) < 0.9 * GYRO_LIMIT:
+            return float(rho)
+    raise ValueError(f"{params.name}: no relaxed hover keeps the yaw rate inside the gyro range")
+
+
+class SpinRecoveryController:
+    """Primary-axis control of a quadrotor that lost one propeller; see the module docstring.
+
+    `engage(failed_rotor, obs)` starts it (the policies call it on the alarm); `land()` turns holding the
+    reference into a descent and touchdown. `mode`: "standby" (not engaged), "hold", "land", "landed".
+    `thrust_axis_reference` (NED unit vector): where the controller wants the thrust axis -z now (see
+    `thrust_axis_reference_for`); `axis_command`: n_des, the world direction it wants to spin about.
+    """
+
+    def __init__(self, params: QuadrotorParams, agent_hz: float, gains: SpinRecoveryGains | None = None):
+        self.params = params
+        self.gains = gains or gains_for(params)
+        self.dt = 1.0 / agent_hz
+        g = self.gains
+        self._kp, self._kd, self._ki = (np.asarray(x, dtype=float)
+                                        for x in (g.position, g.velocity, g.position_integral))
+        self._gyro_alpha = 1.0 - np.exp(-2 * np.pi * g.gyro_cutoff_hz * self.dt)
+        self._max_horizontal = GRAVITY * np.tan(np.deg2rad(g.max_axis_tilt_deg))
+        self._equilibria: dict[int, dict] = {}
+        self._lqrs: dict[int, ScheduledAxisLqr] = {}
+        self.reset()
+
+    # ------------------------------------------------------------------ lifecycle
+    def reset(self, obs: dict | None = None, info: dict | None = None) -> None:
+        self.failed_rotor, self.mode = None, "standby"
+        self._pos_integral = np.zeros(3)
+        self._gyro = None
+        self._landing_target = None
+        self._stopped_steps = 0
+        self.thrust_axis_reference = UP.copy()
+        self.axis_command = UP.copy()
+
+    def equilibrium(self, failed_rotor: int) -> dict:
+        """The relaxed hover flown without `failed_rotor` (cached)."""
+        if failed_rotor not in self._equilibria:
+            rho = self.gains.rho if self.gains.rho is not None else choose_rho(self.params, failed_rotor)
+            self._equilibria[failed_rotor] = relaxed_hover_equilibrium(self.params, rho, failed_rotor=failed_rotor)
+        return self._equilibria[failed_rotor]
+
+    def engage(self, failed_rotor: int, obs: dict | None = None) -> None:
+        """Start flying without `failed_rotor` (0-based); gains are designed on first use of each rotor."""
+        failed_rotor = int(failed_rotor)
+        if failed_rotor not in self._lqrs:
+            self._lqrs[failed_rotor] = ScheduledAxisLqr(self.params, failed_rotor, self.equilibrium(failed_rotor),
+                                                        self.gains)
+        self.failed_rotor, self._lqr = failed_rotor, self._lqrs[failed_rotor]
+        self.mode = "hold"
+        if obs is not None:
+            self._gyro = np.asarray(obs["gyro"], dtype=float).copy()
+
+    def land(self) -> None:
+        """Descend where the vehicle is (landing_speed, touchdown_speed in the last metre) and stop the
+        motors once the ground has stopped it."""
+        if self.mode == "standby":
+            raise RuntimeError("SpinRecoveryController.land before engage(failed_rotor)")
+        if self.mode == "hold":
+            self.mode, self._landing_target = "land", None
+
+    # ------------------------------------------------------------------ control
+    def act(self, obs: dict, info: dict | None = None) -> np.ndarray:
+        if self.mode == "standby":
+            raise RuntimeError("SpinRecoveryController.act before engage(failed_rotor)")
+        if self.mode == "land" and self._touched_down(obs):
+            self.mode = "landed"
+        if self.mode == "landed":
+            return np.zeros(4, dtype=np.float32)
+        R = rotation_matrix(obs["attitude"])
+        rates = self._filtered_rates(obs["gyro"])
+        position, velocity = self._circle_centre(obs, R, rates)
+        force = self._force_command(obs, position, velocity)
+        self.axis_command = force / np.linalg.norm(force)
+        thrust = -force[2] / max(R[2, 2], 0.5)
+        n_body = R.T @ self.axis_command
+        forces, n_target = self._lqr.forces(n_body, rates, obs["rotor_speed"], thrust)
+        self.thrust_axis_reference = thrust_axis_reference_for(R, n_body, n_target)
+        return self._commands(forces)
+
+    def _filtered_rates(self, gyro) -> np.ndarray:
+        gyro = np.asarray(gyro, dtype=float)
+        if self._gyro is None:
+            self._gyro = gyro.copy()
+        self._gyro += self._gyro_alpha * (gyro - self._gyro)
+        return self._gyro
+
+    def _circle_centre(self, obs, R, rates):
+        """Position and velocity of the centre of the small circle the spinning vehicle flies.
+
+        The thrust component a_perp normal to the spin axis turns with the body at |Omega|, so the centre of
+        mass circles at radius |a_perp| / |Omega|^2 with velocity -Omega_w x a_perp / |Omega|^2 (App. B's
+        r_ps). That motion is locked to the spin: fed back, it would return as a constant offset of the
+        primary axis in the body (4 deg on mueller2014). The outer loop sees the centre only.
+        """
+        position, velocity = np.asarray(obs["position"], float), np.asarray(obs["velocity"], float)
+        spin_w = R @ rates
+        spin2 = float(spin_w @ spin_w)
+        weight = min(max((np.sqrt(spin2) - 5.0) / 5.0, 0.0), 1.0)   # no circle to speak of below ~5 rad/s
+        if weight == 0.0:
+            return position, velocity
+        omega = np.asarray(obs["rotor_speed"], float)[self._lqr.working]
+        accel = self.params.thrust_coefficient * float(omega @ omega) / self.params.mass * -R[:, 2]
+        accel_perp = accel - spin_w * float(spin_w @ accel) / spin2
+        return (position + weight * accel_perp / spin2,
+                velocity + weight * cross(spin_w, accel_perp) / spin2)
+
+    def _force_command(self, obs, position, velocity) -> np.ndarray:
+        """Desired force (NED, N): position PD + integral, velocity command capped, tilt of n_des limited."""
+        target, velocity_ref = self._position_reference(obs)
+        error = target - position
+        limit = self.gains.integral_limit
+        # Integrate only near the target: the transient after the switch would wind it up (overshoot).
+        near = np.abs(error) < self.gains.integral_zone
+        integral = np.clip(self._ki * (self._pos_integral + near * error * self.dt), -limit, limit)
+        self._pos_integral = integral / self._ki
+        velocity_cmd = velocity_ref + self._kp / self._kd * error
+        horizontal = np.hypot(velocity_cmd[0], velocity_cmd[1])
+        if horizontal > self.gains.max_horizontal_speed:
+            velocity_cmd[:2] *= self.gains.max_horizontal_speed / horizontal
+        accel = self._kd * (velocity_cmd - velocity) + integral
+        horizontal = np.hypot(accel[0], accel[1])
+        if horizontal > self._max_horizontal:
+            accel[:2] *= self._max_horizontal / horizontal
+        accel[2] = min(accel[2], 0.7 * GRAVITY)   # never ask for less than 30% of the weight
+        return self.params.mass * (accel - np.array([0.0, 0.0, GRAVITY]))
+
+    def _position_reference(self, obs):
+        """The task's reference while holding; while landing, a point sinking below the ground at the
+        descent speed, above the spot where `land()` was called."""
+        if self.mode != "land":
+            return (np.asarray(obs["reference_position"], dtype=float),
+                    np.asarray(obs["reference_velocity"], dtype=float))
+        if self._landing_target is None:
+            self._landing_target = np.asarray(obs["position"], dtype=float).copy()
+        altitude = -float(obs["position"][2]) - self._rest_height()
+        speed = self.gains.landing_speed if altitude > 1.0 else self.gains.touchdown_speed
+        target = self._landing_target
+        target[2] = min(max(target[2], float(obs["position"][2]) - 0.5) + speed * self.dt, 0.5)
+        return target.copy(), np.array([0.0, 0.0, speed])
+
+    def _touched_down(self, obs) -> bool:
+        """Near the ground and no longer sinking for 0.1 s: the ground holds the vehicle."""
+        low = -float(obs["position"][2]) < self._rest_height() + self.gains.touchdown_margin
+        stopped = float(obs["velocity"][2]) < 0.05
+        self._stopped_steps = self._stopped_steps + 1 if (low and stopped) else 0
+        return self._stopped_steps * self.dt >= 0.1
+
+    def _rest_height(self) -> float:
+        return 0.5 * self.params.body_size[2]
+
+    def _commands(self, forces) -> np.ndarray:
+        p = self.params
+        omega = np.sqrt(forces / p.thrust_coefficient)
+        command = np.zeros(4)
+        command[self._lqr.working] = (omega - p.omega_min) / (p.omega_max - p.omega_min)
+        return np.clip(command, 0.0, 1.0).astype(np.float32)
+
+
+def thrust_axis_reference_for(R, n_body, n_target) -> np.ndarray:
+    """Where the thrust axis belongs now: -z of the attitude nearest R whose primary axis is on target.
+
+    That attitude is R Q, Q the smallest rotation taking n_target to n_body (the commanded axis n_des seen in
+    the body), so R Q n_target = n_des. Its thrust axis is at most the primary-axis error away from the
+    measured one. In the relaxed hover the thrust axis circles n_des at the equilibrium tilt (16 deg for
+    mueller2014 at rho = 0.5): compared with n_des itself, that design tilt would count as error.
+    """
+    axis = cross(n_target, n_body)
+    s, c = float(np.linalg.norm(axis)), float(n_target @ n_body)
+    minus_z = np.array([0.0, 0.0, -1.0])
+    if s < 1e-12:
+        return R @ minus_z
+    k = axis / s
+    rotated = minus_z * c + cross(k, minus_z) * s + k * float(k @ minus_z) * (1.0 - c)   # Rodrigues
+    return R @ rotated
+
+
+class ScheduledAxisLqr:
+    """LQR of the primary axis about the relaxed hover, gain-scheduled on the yaw rate (one failed rotor).
+
+    Mueller & D'Andrea stabilise the relaxed hover with an LQR on the linearised body-frame dynamics of
+    (p, q, n_x, n_y). We add the rotor forces' first-order lag to the state (15-33 ms while the body turns at
+    20-30 rad/s) and use the two force changes that leave the collective thrust alone (the altitude loop owns
+    it): the adjacent pair's differential and the opposite rotor against the pair. The linearisation keeps the
+    gyroscopic coupling -Omega x (I Omega + h): after the loss no rotor can push the failed rotor's side up,
+    and a roll/pitch rate crossed with the spin (and the propellers' momentum) is the only moment that can.
+    While the yaw rate builds up the operating point is the frozen-r spin about the scheduled axis, so gains
+    are designed on a grid of yaw rates and interpolated.
+    """
+
+    def __init__(self, params: QuadrotorParams, failed_rotor: int, equilibrium: dict, gains: SpinRecoveryGains):
+        self.params, self.gains = params, gains
+        self.working = np.array([i for i in range(4) if i != failed_rotor])
+        (a, b), opposite = rotor_roles(failed_rotor)
+        slot = {int(i): k for k, i in enumerate(self.working)}
+        self.basis = np.zeros((3, 2))
+        self.basis[[slot[a], slot[b]], 0] = (1.0, -1.0)
+        self.basis[[slot[a], slot[opposite], slot[b]], 1] = (-0.5, 1.0, -0.5)
+        self.basis /= np.linalg.norm(self.basis, axis=0)
+        self.pair = self.basis[:, 0] != 0.0
+        self.opposite = slot[opposite]
+        self.loaded = np.arange(4) != failed_rotor
+        self.inertia = np.asarray(params.inertia, dtype=float)
+        pos = params.rotor_positions[self.working]
+        self.balance_rows = np.vstack([-pos[:, 1], pos[:, 0], np.ones(3)])   # [M_x, M_y, T] per newton
+        self.yaw_signs = np.asarray(YAW_SIGNS)[self.working]
+        self.n_bar, self.r_bar = equilibrium["n"], equilibrium["yaw_rate"]
+        self.f_min = params.thrust_coefficient * params.omega_min ** 2
+        self.f_max = params.thrust_coefficient * params.omega_max ** 2
+        self.grid = self.r_bar * np.linspace(0.0, 1.3, 14)
+        self.gain_grid = np.array([self._design(r, equilibrium["thrust"]) for r in self.grid])
+
+    # -------------------------------------------------------------- operating point
+    def target_axis(self, r: float) -> np.ndarray:
+        """n_bar leaned from -z by (r / r_bar)^power: without spin there is no gyroscopic stiffness to hold
+        a tilted axis with, and the level spin (rho = 0) has the most yaw torque to spin up with."""
+        share = min(max(r / self.r_bar, 0.0), 1.0) ** self.gains.schedule_power
+        axis = np.array([share * self.n_bar[0], share * self.n_bar[1], self.n_bar[2]])
+        return axis / np.linalg.norm(axis)
+
+    def operating_point(self, r: float, thrust: float, rotor_speed=None):
+        """Axis, body rates and forces of the frozen-r spin: Omega = (r / n_z) n keeps n steady, and the
+        forces hold Omega steady about x and y (the moment balance of App. B eq. 12-13) with sum = thrust."""
+        axis = self.target_axis(r)
+        rates = r / axis[2] * axis
+        h_z = self._propeller_momentum(thrust, rotor_speed)
+        momentum = self.inertia * rates + np.array([0.0, 0.0, h_z])
+        needed = cross(rates, momentum) - rotational_drag_moment(self.params, rates)
+        forces = np.linalg.solve(self.balance_rows, np.array([needed[0], needed[1], thrust]))
+        if forces[self.opposite] < self.f_min and self.gains.balance_idle:
+            rates, forces = self._idle_balance(rates, thrust, h_z)
+        return axis, rates, np.clip(forces, self.f_min, self.f_max)
+
+    def _propeller_momentum(self, thrust, rotor_speed) -> float:
+        """h_z = -I_p sum(s_i omega_i) of the working propellers (measured speeds, or equal shares of thrust)."""
+        if rotor_speed is None:
+            omega = np.full(3, np.sqrt(thrust / 3.0 / self.params.thrust_coefficient))
+        else:
+            omega = np.asarray(rotor_speed, dtype=float)[self.working]
+        return -self.params.propeller_inertia * float(self.yaw_signs @ omega)
+
+    def _idle_balance(self, rates, thrust, h_z):
+        """Rates and forces that hold p, q steady with the opposite rotor at idle.
+
+        At idle the opposite rotor still tips the body toward the failed rotor, and no rotor can push back;
+        the gyroscopic moment Omega x (I Omega + h) of a roll/pitch rate can. At frozen r the balance is linear
+        in (p, q): we take the (p, q) nearest the nominal ones.
+        """
+        ixx, iyy, izz = self.inertia
+        r = rates[2]
+        dx, dy, _ = self.params.rotational_drag
+        coupling = np.array([[dx, r * (izz - iyy) + h_z], [-(r * (izz - ixx) + h_z), dy]])  # moment_xy = C (p, q)
+        free = np.arange(3) != self.opposite
+        A, b = np.zeros((5, 4)), np.zeros(5)
+        A[:2, :2], A[:2, 2:] = self.balance_rows[:2, free], -coupling
+        b[:2] = coupling @ rates[:2] - self.balance_rows[:2, self.opposite] * self.f_min
+        A[2, :2], b[2] = 1.0, thrust - self.f_min
+        A[:3], b[:3] = 1e3 * A[:3], 1e3 * b[:3]          # the balance rows exactly, then the least rate change
+        A[3, 2] = A[4, 3] = 1.0
+        solution = np.linalg.lstsq(A, b, rcond=None)[0]
+        forces = np.full(3, self.f_min)
+        forces[free] = solution[:2]
+        return np.array([rates[0] + solution[2], rates[1] + solution[3], r]), forces
+
+    # -------------------------------------------------------------- design
+    def _state_derivative(self, state, command, r) -> np.ndarray:
+        """d/dt (p, q, n_x, n_y, f_working) at frozen yaw rate r; forces lag their commands by tau."""
+        p, q, nx, ny = state[:4]
+        rates = np.array([p, q, r])
+        n = np.array([nx, ny, -np.sqrt(max(1.0 - nx * nx - ny * ny, 1e-9))])
+        forces = np.zeros(4)
+        forces[self.working] = state[4:]
+        rates_dot = body_moment(self.params, rates, forces, self.loaded) / self.inertia
+        n_dot = np.cross(n, rates)
+        return np.concatenate([rates_dot[:2], n_dot[:2], (command - state[4:]) / self.params.motor_time_constant])
+
+    def _design(self, r: float, thrust: float) -> np.ndarray:
+        axis, rates, forces = self.operating_point(r, thrust)
+        x0 = np.concatenate([rates[:2], axis[:2], forces])
+        A, B = _jacobians(lambda x, u: self._state_derivative(x, u, r), x0, forces)
+        g = self.gains
+        share = min(abs(r / self.r_bar), 1.0)
+        axis_weight = g.lqr_axis_weight * (g.lqr_axis_floor + (1.0 - g.lqr_axis_floor) * share ** 2)
+        Q = np.diag([g.lqr_rate_weight] * 2 + [axis_weight] * 2 + [g.lqr_force_weight] * 3)
+        # The opposite rotor cannot go below idle, where the low-spin operating point has it: its input weighs
+        # lqr_opposite_weight times more at r = 0, falling to 1 at r_bar.
+        R = np.diag([1.0, g.lqr_opposite_weight ** (1.0 - share)]) * g.lqr_input_weight
+        Bv = B @ self.basis
+        P = solve_continuous_are(A, Bv, Q, R)
+        return np.linalg.solve(R, Bv.T @ P)
+
+    def gain(self, r: float) -> np.ndarray:
+        """K at yaw rate r, linear between grid points (held beyond the grid)."""
+        s = min(max((r - self.grid[0]) / (self.grid[1] - self.grid[0]), 0.0), len(self.grid) - 1.0)
+        k = min(int(s), len(self.grid) - 2)
+        w = s - k
+        return (1.0 - w) * self.gain_grid[k] + w * self.gain_grid[k + 1]
+
+    # -------------------------------------------------------------- control
+    def forces(self, n_body, rates, rotor_speed, thrust):
+        """Commanded forces of the working rotors (N) and the target axis at the measured yaw rate."""
+        r = float(rates[2])
+        axis, rates0, forces0 = self.operating_point(r, thrust, rotor_speed)
+        measured = self.params.thrust_coefficient * np.asarray(rotor_speed, dtype=float)[self.working] ** 2
+        deviation = np.concatenate([rates[:2] - rates0[:2], n_body[:2] - axis[:2], measured - forces0])
+        command = forces0 + self.basis @ (-self.gain(r) @ deviation)
+        if abs(r) < self.gains.boost_until * abs(self.r_bar):
+            thrust = 3.0 * self.f_max   # spin up as fast as the rotors allow: yaw torque, lift, stiffness all grow
+        return self._keep_thrust(command, thrust), axis
+
+    def _keep_thrust(self, command, thrust) -> np.ndarray:
+        """Clip to the rotor limits, then give the adjacent pair (whose common change moves neither roll nor
+        pitch) what clipping took from, or added to, the collective thrust, as far as the pair can take it
+        without losing its differential."""
+        clipped = np.clip(command, self.f_min, self.f_max)
+        pair = clipped[self.pair]
+        shift = np.clip((thrust - clipped.sum()) / 2.0, self.f_min - pair.min(), self.f_max - pair.max())
+        clipped[self.pair] += shift
+        return clipped
+
+
+def _jacobians(f, x0, u0, eps=1e-6):
+    """Central-difference Jacobians of f(x, u) at (x0, u0)."""
+    A = np.column_stack([(f(x0 + eps * e, u0) - f(x0 - eps * e, u0)) / (2 * eps) for e in np.eye(len(x0))])
+    B = np.column_stack([(f(x0, u0 + eps * e) - f(x0, u0 - eps * e)) / (2 * eps) for e in np.eye(len(u0))])
+    return A, B
+
+
+class SpinAfterAlarmPolicy:
+    """`ftc-spin`: the nominal controller until the `loe_kalman` detector alarms, then spin recovery without
+    the rotor it isolated. The env must be wrapped with the detector (the rotor-loss scenarios are)."""
+
+    detector = "loe_kalman"
+
+    def __init__(self, params: QuadrotorParams, agent_hz: float, gains: SpinRecoveryGains | None = None):
+        self.nominal = NominalController(params, agent_hz)
+        self.spin = SpinRecoveryController(params, agent_hz, gains)
+
+    @property
+    def thrust_axis_reference(self) -> np.ndarray:
+        active = self.nominal if self.spin.mode == "standby" else self.spin
+        return active.thrust_axis_reference
+
+    def reset(self, obs: dict, info: dict) -> None:
+        self.nominal.reset(obs, info)
+        self.spin.reset(obs, info)
+
+    def act(self, obs: dict, info: dict) -> np.ndarray:
+        if self.spin.mode == "standby":
+            failed = self._failed_rotor(info)
+            if failed is None:
+                return self.nominal.act(obs, info)
+            self.spin.engage(failed, obs)
+        return self.spin.act(obs, info)
+
+    def land(self) -> None:
+        """Land with the spin recovery (after a fault; before one the nominal controller flies)."""
+        self.spin.land()
+
+    def _failed_rotor(self, info: dict):
+        status = info.get("fdd", {}).get(self.detector)
+        if status is None:
+            raise ValueError(f"ftc-spin needs the env wrapped with the {self.detector!r} detector")
+        return status["isolated"] if status["alarm"] else None
+
+
+class OracleSpinPolicy(SpinAfterAlarmPolicy):
+    """`oracle-spin`: switches at the true fault onset, an upper bound rather than a flyable policy.
+
+    The benchmark gives an oracle `info["oracle_onset_time"]`. The failed rotor comes from
+    `info["oracle_fault_target"]` where the runner provides it (a one-line change to
+    `ftcgym.benchmark.runner.policy_view`); without it, from the detector's isolation once it alarms, and the
+    oracle then switches no earlier than `ftc-spin`.
+    """
+
+    uses_true_onset = True
+
+    def _failed_rotor(self, info: dict):
+        onset = info.get("oracle_onset_time")
+        if onset is None or info["time"] < onset:
+            return None
+        target = info.get("oracle_fault_target")
+        if target is not None:
+            return target
+        status = info.get("fdd", {}).get(self.detector, {})
+        return status.get("isolated") if status.get("alarm") else None
