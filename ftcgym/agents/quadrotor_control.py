@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..envs.frames import cross, rotation_matrix
+from ..geometry import cross, rotation_matrix
 from ..envs.vehicles import GRAVITY, YAW_SIGNS, QuadrotorParams
 
 UP = np.array([0.0, 0.0, -1.0])  # NED

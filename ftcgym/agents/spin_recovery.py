@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import solve_continuous_are
 
-from ..envs.frames import cross, rotation_matrix
+from ..geometry import cross, rotation_matrix
 from ..envs.sensors import GYRO_LIMIT
 from ..envs.vehicles import GRAVITY, YAW_SIGNS, QuadrotorParams
 from .quadrotor_control import UP, NominalController

@@ -41,6 +41,7 @@ import math
 import numpy as np
 from scipy import signal
 
+from ..geometry import rotation_matrix
 from .base import AlarmLatch
 from .wrapper import DetectorWrapper
 
@@ -312,7 +313,7 @@ class SixDofResidual:
         phi, theta, _ = _euler(_finite(readings, "attitude"))
         if self.omega_s is None:   # start from the measured state
             self.omega_s = gyro.copy()
-            R = _rotation(_finite(readings, "attitude"))
+            R = rotation_matrix(_finite(readings, "attitude"))
             self.V_s = (R.T @ _finite(readings, "velocity"))[:2]
         k1, g = self.lambda_1 / self.m, GRAVITY
         (p, q, _), (u, v) = self.omega_s, self.V_s
@@ -336,16 +337,6 @@ def _finite(readings: dict, key: str) -> list:
     if not math.isfinite(sum(values)):   # any NaN or inf makes the sum non-finite
         raise ValueError(f"iv_change: reading {key!r} is not finite: {values}")
     return values
-
-
-def _rotation(q) -> np.ndarray:
-    """Body->world rotation matrix of a quaternion (x, y, z, w)."""
-    x, y, z, w = q
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
 
 
 def _euler(q) -> list:
