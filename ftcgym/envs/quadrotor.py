@@ -71,6 +71,8 @@ class QuadrotorEnv(gym.Env):
         self._body_drag = np.asarray(self.params.body_drag, dtype=float)
         self._rot_drag = np.asarray(self.params.rotational_drag, dtype=float)
         self._gravity = np.array([0.0, 0.0, GRAVITY])
+        # Below this altitude the body may touch the ground: 1.5 x half its diagonal (contacts are queried only here).
+        self._ground_check_altitude = 0.75 * float(np.linalg.norm(self.params.body_size))
         self.action_space = spaces.Box(0.0, 1.0, (4,), np.float32)
         self.observation_space = self._make_observation_space()
 
@@ -103,7 +105,8 @@ class QuadrotorEnv(gym.Env):
         self._mass = self.params.mass
         ref = self.task.reference(0.0)
         position = ref.position + rng.uniform(-0.05, 0.05, 3)
-        attitude = _small_attitude(rng.uniform(-np.deg2rad(2), np.deg2rad(2), 3), ref.yaw)
+        roll, pitch, dyaw = rng.uniform(-np.deg2rad(2), np.deg2rad(2), 3)
+        attitude = quat_from_euler(roll, pitch, ref.yaw + dyaw)
         self.world.reset(position, attitude, np.zeros(3), np.zeros(3))
         self.rotors.reset(self.params.hover_omega)
         self._apply_faults()
@@ -186,13 +189,10 @@ class QuadrotorEnv(gym.Env):
         altitude = -self._pos[2]
         if abs(self._pos[0]) > BOUNDS or abs(self._pos[1]) > BOUNDS or altitude > BOUNDS:
             self._crashed, self._termination = True, "out_of_bounds"
-        elif altitude < 1.5 * self._max_extent() and self.world.touching_ground():
+        elif altitude < self._ground_check_altitude and self.world.touching_ground():
             impact = math.sqrt(max(self._v_before @ self._v_before, self._vel @ self._vel))
             if impact > CRASH_SPEED or self._tilt() > CRASH_TILT:
                 self._crashed, self._termination = True, "ground_impact"
-
-    def _max_extent(self) -> float:
-        return 0.5 * float(np.linalg.norm(self.params.body_size))
 
     def _tilt(self) -> float:
         """Angle between the thrust axis (body -z) and up."""
@@ -258,8 +258,3 @@ def _check_rates(physics_hz, agent_hz):
     if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
         raise ValueError(f"agent_hz: physics_hz / agent_hz must be a whole number >= 1, got {physics_hz}/{agent_hz}")
     return float(physics_hz), float(agent_hz)
-
-
-def _small_attitude(roll_pitch_yaw_noise, yaw: float) -> np.ndarray:
-    roll, pitch, dyaw = roll_pitch_yaw_noise
-    return quat_from_euler(roll, pitch, yaw + dyaw)

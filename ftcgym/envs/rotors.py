@@ -102,9 +102,3 @@ class RotorSet:
     @property
     def total_thrust(self) -> float:
         return self.c_t * float(self.effectiveness @ (self.omega * self.omega))
-
-
-def hover_command(omega_hover: float, omega_min: float, omega_max: float) -> float:
-    """The normalised command that gives `omega_hover` in steady state."""
-    return (omega_hover - omega_min) / (omega_max - omega_min)
-
