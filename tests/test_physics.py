@@ -4,7 +4,7 @@ import pytest
 
 from conftest import fly, hover_command, make_env
 from ftcgym.envs.sensors import GYRO_LIMIT
-from ftcgym.envs.vehicles import BEBOP2, GRAVITY, MUELLER2014
+from ftcgym.envs.vehicles import BEBOP2, GRAVITY, MUELLER2014, make_params
 
 
 @pytest.mark.parametrize("vehicle", ["bebop2", "mueller2014"])
@@ -73,12 +73,21 @@ def test_yaw_torque_signs_follow_004_eq7(quiet_sensors):
     rates, _ = _step_from_hover(env, np.array([down, up, down, up], dtype=np.float32), 50)
     assert rates[-1, 2] < -0.5
     # Magnitude after the motors settle (0.3 s = 9 time constants, so the propellers' spin-up reaction has
-    # died out): r_dot = (c_Q sum(s_i omega_i^2) - D_r r) / Izz.
+    # died out): r_dot = (c_Q sum(s_i omega_i^2) - (D1 + D2 |r|) r) / Izz.
     rates, speeds = _step_from_hover(env, np.array([up, down, up, down], dtype=np.float32), 150)
     dt = 1 / env.unwrapped.agent_hz
     measured = (rates[-1, 2] - rates[-11, 2]) / (10 * dt)
-    torque = p.torque_coefficient * (speeds[-5] ** 2 @ np.array([1, -1, 1, -1])) - p.rotational_drag[2] * rates[-5, 2]
+    damping = p.rotational_drag_moment(rates[-5])[2]
+    torque = p.torque_coefficient * (speeds[-5] ** 2 @ np.array([1, -1, 1, -1])) + damping
     assert abs(measured / (torque / p.inertia[2]) - 1) < 0.05
+
+
+def test_rotational_drag_is_quadratic_on_bebop2_and_linear_on_mueller2014():
+    """Sun's Bebop2 model damps -D2 |w| w (simParams.m rotDrag, N m s^2); 001 App. B's yaw damping is linear."""
+    bebop, mueller = make_params("bebop2"), make_params("mueller2014")
+    rates = np.array([2.0, -4.0, 20.0])
+    assert bebop.rotational_drag_moment(rates) == pytest.approx([-2e-4, 8e-4, -0.04])
+    assert mueller.rotational_drag_moment(rates) == pytest.approx([-2e-4, 4e-4, -0.055])
 
 
 def test_free_fall_at_g_and_accelerometer_reads_zero(quiet_sensors):

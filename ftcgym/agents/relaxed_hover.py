@@ -74,8 +74,8 @@ def propeller_momentum(params: QuadrotorParams, omega: np.ndarray, loaded: np.nd
 
 
 def rotational_drag_moment(params: QuadrotorParams, rates: np.ndarray) -> np.ndarray:
-    """-D Omega, linear in rate as the simulator applies it (`QuadrotorEnv._physics_step`)."""
-    return -np.asarray(params.rotational_drag, dtype=float) * rates
+    """-(D1 + D2 |Omega|) Omega, as the simulator applies it (`QuadrotorParams.rotational_drag_moment`)."""
+    return params.rotational_drag_moment(rates)
 
 
 def body_moment(params: QuadrotorParams, rates, forces, loaded) -> np.ndarray:
@@ -99,12 +99,13 @@ def _initial_guess(params, rho, failed_rotor, weight, loaded) -> np.ndarray:
     f_adjacent = weight / (2.0 + rho)
     forces = rotor_forces_for(f_adjacent, rho, failed_rotor)
     yaw_torque = rotor_moment(params, forces)[2]
-    r = yaw_torque / max(params.rotational_drag[2], 1e-9)
+    d1, d2 = params.rotational_drag[2], params.rotational_drag_quadratic[2]   # torque = d1 r + d2 r^2
+    r = 2.0 * abs(yaw_torque) / (d1 + np.sqrt(d1 * d1 + 4.0 * d2 * abs(yaw_torque))) if d1 + d2 > 0 else 60.0
     r = float(np.clip(abs(r), 5.0, 60.0)) * spin_direction(failed_rotor)
     ixx, iyy, izz = params.inertia
     omega = np.sqrt(forces / params.thrust_coefficient)
     h_z = propeller_momentum(params, omega, loaded)[2]
-    dx, dy = params.rotational_drag[:2]
+    dx, dy = params.rotational_drag[:2]   # the quadratic term vanishes at p = q = 0
     # Moment balance about x and y, linear in (p, q) for fixed r: -Omega x (I Omega + h) - D Omega = -M_thrust
     A = np.array([[-dx, -(izz - iyy) * r - h_z], [(izz - ixx) * r + h_z, -dy]])
     p, q = np.linalg.solve(A, -rotor_moment(params, forces)[:2])

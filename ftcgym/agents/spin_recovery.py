@@ -53,6 +53,8 @@ class SpinRecoveryGains:
     # inner loop (ScheduledAxisLqr)
     schedule_power: float = 2.0                # target axis leans toward n_bar as (r / r_bar)^power
     boost_until: float = 0.5                   # below this share of r_bar the adjacent pair runs flat out
+    arrest_rate: float | None = None           # rad/s: above this roll/pitch rate the boost damps it first
+    arrest_gain: float = 14.0                  # 1/s, rate-damping gain of the arrest (see ScheduledAxisLqr.arrest)
     lqr_axis_weight: float = 1000.0            # 1/rad^2 on n_x, n_y errors
     lqr_axis_floor: float = 1.0                # share of the axis weight at r = 0, rising as (r / r_bar)^2
     lqr_rate_weight: float = 5.0               # s^2/rad^2 on p, q errors
@@ -66,11 +68,11 @@ class SpinRecoveryGains:
     touchdown_margin: float = 0.15             # m above the resting height where a stop counts as touchdown
 
 
-#: Per-vehicle departures from the defaults, tuned on seeds 1000+. The Bebop 2's idle speed leaves its
-#: opposite rotor a moment six times Mueller's (0.19 N at 314 rad/s: 20 rad/s^2 against 3.4), too much to
-#: leave to the LQR at low spin: it gets the idle balance, an LQR that leaves that rotor alone while the spin
-#: builds up, and little axis weight before the gyroscopic stiffness exists.
-VEHICLE_GAINS = {"bebop2": {"balance_idle": True, "lqr_opposite_weight": 1000.0, "lqr_axis_floor": 0.01}}
+#: Per-vehicle departures from the defaults, tuned on seeds 1000+. The Bebop 2 (inertia a third of
+#: Mueller's for similar rotor moments) tips fastest: it gets the idle balance, an LQR that leaves the
+#: opposite rotor alone while the spin builds up, and little axis weight before gyroscopic stiffness exists.
+VEHICLE_GAINS = {"bebop2": {"balance_idle": True, "lqr_opposite_weight": 1000.0, "lqr_axis_floor": 0.01,
+                            "arrest_rate": 1.0}}
 
 
 def gains_for(params: QuadrotorParams) -> SpinRecoveryGains:
@@ -340,7 +342,9 @@ class ScheduledAxisLqr:
         """
         ixx, iyy, izz = self.inertia
         r = rates[2]
-        dx, dy, _ = self.params.rotational_drag
+        # damping -(D1 + D2 |w|) w as a secant through zero at the nominal rates
+        dx, dy = np.asarray(self.params.rotational_drag[:2]) + np.asarray(
+            self.params.rotational_drag_quadratic[:2]) * np.abs(rates[:2])
         coupling = np.array([[dx, r * (izz - iyy) + h_z], [-(r * (izz - ixx) + h_z), dy]])  # moment_xy = C (p, q)
         free = np.arange(3) != self.opposite
         A, b = np.zeros((5, 4)), np.zeros(5)
@@ -395,10 +399,37 @@ class ScheduledAxisLqr:
         axis, rates0, forces0 = self.operating_point(r, thrust, rotor_speed)
         measured = self.params.thrust_coefficient * np.asarray(rotor_speed, dtype=float)[self.working] ** 2
         deviation = np.concatenate([rates[:2] - rates0[:2], n_body[:2] - axis[:2], measured - forces0])
+        spinning_up = abs(r) < self.gains.boost_until * abs(self.r_bar)
+        arrest = self.gains.arrest_rate
+        if spinning_up and arrest is not None and np.hypot(rates[0], rates[1]) > arrest:
+            return self.arrest(rates), axis
         command = forces0 + self.basis @ (-self.gain(r) @ deviation)
-        if abs(r) < self.gains.boost_until * abs(self.r_bar):
+        if spinning_up:
             thrust = 3.0 * self.f_max   # spin up as fast as the rotors allow: yaw torque, lift, stiffness all grow
         return self._keep_thrust(command, thrust), axis
+
+    def arrest(self, rates) -> np.ndarray:
+        """Spin up flat out and damp the roll/pitch rate left by the detection delay (the upset of Sun et al.,
+        "Upset recovery control for quadrotors subjected to a complete rotor failure from large initial
+        disturbances", ICRA 2020).
+
+        After the loss the body tips about the axis along which only the lost rotor could push back, and the
+        opposite rotor can only push the wrong way: it is stopped. The adjacent pair's differential acts about
+        the perpendicular axis; the gyroscopic coupling (I_zz - I_xx) r + h_z of the spin and the propellers
+        turns the rate vector into its reach. Per step the differential gives the angular acceleration nearest
+        -arrest_gain * (p, q) (least squares along its one direction), taken from the slower rotor of the pair
+        while the faster stays at f_max, so the spin and the propellers' momentum keep building up. A linear
+        design about the relaxed hover does not see this phase: from the ~6 rad/s a Bebop 2 has at a 60 ms
+        alarm it let the axis settle 55 deg off (issue 4 report).
+        """
+        a, b = np.flatnonzero(self.pair)
+        per_newton = (self.balance_rows[:2, a] - self.balance_rows[:2, b]) / 2.0 / self.inertia[:2]
+        desired = -self.gains.arrest_gain * np.asarray(rates[:2], dtype=float)
+        differential = float(per_newton @ desired) / float(per_newton @ per_newton)
+        forces = np.full(3, self.f_min)
+        forces[a] = max(self.f_max + min(0.0, differential), self.f_min)
+        forces[b] = max(self.f_max - max(0.0, differential), self.f_min)
+        return forces
 
     def _keep_thrust(self, command, thrust) -> np.ndarray:
         """Clip to the rotor limits, then give the adjacent pair (whose common change moves neither roll nor

@@ -69,7 +69,8 @@ class QuadrotorEnv(gym.Env):
         self.world = PyBulletWorld(self.physics_hz, self.params.mass, self.params.inertia, self.params.body_size,
                                    gui=render_mode == "human")
         self._body_drag = np.asarray(self.params.body_drag, dtype=float)
-        self._rot_drag = np.asarray(self.params.rotational_drag, dtype=float)
+        self._rot_drag = (np.asarray(self.params.rotational_drag, dtype=float),   # params.rotational_drag_moment,
+                          np.asarray(self.params.rotational_drag_quadratic, dtype=float))   # cached for the loop
         self._gravity = np.array([0.0, 0.0, GRAVITY])
         # Below this altitude the body may touch the ground: 1.5 x half its diagonal (contacts are queried only here).
         self._ground_check_altitude = 0.75 * float(np.linalg.norm(self.params.body_size))
@@ -143,7 +144,8 @@ class QuadrotorEnv(gym.Env):
         air_body = R.T @ (self._vel - self._wind)
         force, moment = rotors.wrench(self._rates, air_body)
         force -= self._body_drag * air_body
-        moment -= self._rot_drag * self._rates
+        linear, quadratic = self._rot_drag
+        moment -= (linear + quadratic * np.abs(self._rates)) * self._rates
         v_before = self._vel
         self.world.step(R @ force, R @ moment, self._pos)
         self.sensors.advance_rotor_phase(rotors.omega, dt)

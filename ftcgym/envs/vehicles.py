@@ -39,6 +39,7 @@ class QuadrotorParams:
     unloaded_speed_ratio: float     # steady speed of a motor that lost its propeller / loaded speed
     unloaded_time_constant: float   # s, motor lag without the propeller's inertia
     body_size: tuple = (0.2, 0.2, 0.05)  # m, collision box (x, y, z)
+    rotational_drag_quadratic: tuple = (0.0, 0.0, 0.0)  # (p, q, r) N m s^2: -D2 |w| w (Sun's Bebop2 model)
     sources: dict = field(default_factory=dict, compare=False, repr=False)
 
     @property
@@ -46,6 +47,14 @@ class QuadrotorParams:
         """Rotor positions in body FRD, rows r1..r4 (000 eq. 4)."""
         h, b = self.arm_x, self.arm_y
         return np.array([[h, -b, 0.0], [h, b, 0.0], [-h, b, 0.0], [-h, -b, 0.0]])
+
+    def rotational_drag_moment(self, rates) -> np.ndarray:
+        """Aerodynamic damping moment -(D1 + D2 |w|) w per body axis: linear as 004 eq. (11) and quadratic as
+        Sun et al.'s Bebop2 model (simpleAeroModel.m: MDrag = -sign(w) rotDrag w^2)."""
+        rates = np.asarray(rates, dtype=float)
+        linear = np.asarray(self.rotational_drag, dtype=float)
+        quadratic = np.asarray(self.rotational_drag_quadratic, dtype=float)
+        return -(linear + quadratic * np.abs(rates)) * rates
 
     @property
     def hover_omega(self) -> float:
@@ -72,7 +81,9 @@ BEBOP2 = QuadrotorParams(
     arm_y=0.115,                                  # b, _SUN; 000 Fig. 2
     thrust_coefficient=1.9035e-6,                 # _SUN
     torque_coefficient=1.9203e-8,                 # _SUN (c_Q / c_T = 0.0101 m)
-    omega_min=314.0,                              # 000 Sec. IV-A: minimum ~3000 RPM
+    # _SUN simParams.m wMin = 0: the FTC firmware may stop a motor. (000 Sec. IV-A's ~3000 RPM is the stock
+    # ESC's idle; with it the opposite rotor tips the body toward the lost one and no spin recovery holds.)
+    omega_min=0.0,
     omega_max=1200.0,                             # _SUN: rotor speed up to 1200 rad/s (~12000 RPM, 000 Sec. IV-A)
     motor_time_constant=1.0 / 30.0,               # _SUN
     max_rotor_acceleration=5.0e4,                 # _SUN
@@ -80,10 +91,11 @@ BEBOP2 = QuadrotorParams(
     propeller_inertia=8.0e-6,                     # _SUN, spin axis
     rotor_drag_coefficient=1.0e-5,                # assumed: 001 Sec. 4.3 form; ~0.029 N/(m/s) for 4 rotors at hover
     body_drag=(0.02, 0.02, 0.04),                 # assumed, order of 004 eq. (9) lambda
-    rotational_drag=(5.0e-5, 5.0e-5, 1.0e-4),     # _SUN rotational drag (applied linear in rate)
+    rotational_drag=(0.0, 0.0, 0.0),              # _SUN has no linear term
     unloaded_speed_ratio=1.3,                     # assumed: 000 Fig. 8 shows the unloaded motor speeding up
     unloaded_time_constant=0.01,                  # assumed: no propeller inertia, motor spins up fast
     body_size=(0.33, 0.38, 0.09),                 # Parrot Bebop 2 public spec (328 x 382 x 89 mm)
+    rotational_drag_quadratic=(5.0e-5, 5.0e-5, 1.0e-4),  # _SUN simParams.m rotDrag, quadratic in rate
     sources={"general": _SUN, "G": "000 Table II: G_p = G_q = 100e-6, G_az = 5e-6 (same order, see effectiveness_G)"},
 )
 
