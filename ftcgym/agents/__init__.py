@@ -4,7 +4,8 @@ from __future__ import annotations
 from .base import Policy
 from .quadrotor_control import ControllerGains, NominalController, allocation_matrix
 from .relaxed_hover import relaxed_hover_equilibrium
-from .spin_recovery import OracleSpinPolicy, SpinAfterAlarmPolicy, SpinRecoveryController, SpinRecoveryGains
+from .spin_policies import OracleSpinPolicy, SpinAfterAlarmPolicy
+from .spin_recovery import SpinRecoveryController, SpinRecoveryGains
 
 POLICY_DESCRIPTIONS = {
     "nominal": "cascaded PID position/attitude/rate controller with model-based mixer; fault-unaware",
