@@ -12,12 +12,21 @@ Kinds (quadrotor):
 - payload: the mass changes by `magnitude` kg linearly over `duration` s (004 Sec. 5.1: +0.5 kg over 2 s).
 - sensor_bias / sensor_stuck / sensor_dropout: sensor `target` (an observation key) reads value + magnitude,
   holds its value at onset, or reads zero; for `duration` s or for good.
+Kinds (quad-plane, issue 5; rotor_loss and loe act on its hover rotors):
+- pitot_blockage: the pitot reads zero (target "zero", the default) or holds its value ("stuck") from onset;
+  with `rate` (m/s^2) it is incipient: the reading drifts down at that rate, floored at zero (001 Sec. 7.2.2:
+  2.5 m/s^2).
+- gnss, pusher_rpm_sensor: the GNSS velocity / the pusher speed sensor reads zero (001 Sec. 7.3.1, 7.3.2).
+- skew_sensor: the skew angle reading holds its value at onset, or with `magnitude` (rad) is biased.
+- propeller_icing, viscous_friction, static_friction: the pusher's theta_1, c_v or I_0 (003 eq. 1, 5) grow by
+  the factor `magnitude` (default 1.1) along a sigmoid lasting `duration` s (default 50; 003 Sec. IV-A).
 Rotor targets are 0-based indices (0 is 000's r1). "random" as a target draws uniformly; a time given as
 [lo, hi] draws uniformly from that interval.
 """
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -26,9 +35,20 @@ import numpy as np
 ROTOR_KINDS = ("rotor_loss", "loe")
 SENSOR_KINDS = ("sensor_bias", "sensor_stuck", "sensor_dropout")
 KINDS = ROTOR_KINDS + ("payload",) + SENSOR_KINDS
+#: quad-plane sensor faults with a fixed channel: kind -> (generic sensor fault, observation key)
+NAMED_SENSOR_FAULTS = {"gnss": ("sensor_dropout", "gnss_velocity"),
+                       "pusher_rpm_sensor": ("sensor_dropout", "pusher_speed"),
+                       "skew_sensor": ("sensor_stuck", "skew")}
+PITOT_MODES = ("zero", "stuck")
+PROPULSION_KINDS = {"propeller_icing": "theta_1", "viscous_friction": "c_v", "static_friction": "I_0"}
+QUADPLANE_KINDS = (ROTOR_KINDS + SENSOR_KINDS + ("pitot_blockage",) + tuple(NAMED_SENSOR_FAULTS)
+                   + tuple(PROPULSION_KINDS))
 RANDOM_ONSET_WINDOW = (2.0, 5.0)  # s, onset window of "random:<kind>" (DESIGN.md scenario quad-rotor-loss-hover)
 _DEFAULT_MAGNITUDE = {"rotor_loss": 1.0, "loe": 0.5, "payload": 0.5, "sensor_bias": 0.1,
-                      "sensor_stuck": None, "sensor_dropout": None}
+                      "sensor_stuck": None, "sensor_dropout": None, "pitot_blockage": None, "gnss": None,
+                      "pusher_rpm_sensor": None, "skew_sensor": None,
+                      **{kind: 1.1 for kind in PROPULSION_KINDS}}   # 003 Sec. IV-A: x1.1
+PROPULSION_RISE_TIME = 50.0   # s, 003 Sec. IV-A
 _FIELDS = ("kind", "target", "time", "magnitude", "rate", "duration")
 
 
@@ -50,24 +70,25 @@ class FaultSpec:
         return d
 
 
-def parse_faults(faults, n_rotors: int, sensor_names: Sequence[str]) -> list[FaultSpec]:
-    """Validate the env's `faults` kwarg into a list of (possibly unresolved) FaultSpecs."""
+def parse_faults(faults, n_rotors: int, sensor_names: Sequence[str], kinds: Sequence[str] = KINDS) -> list[FaultSpec]:
+    """Validate the env's `faults` kwarg into a list of (possibly unresolved) FaultSpecs; `kinds` are the
+    fault kinds the vehicle accepts (KINDS for the quadrotor, QUADPLANE_KINDS for the quad-plane)."""
     if faults is None:
         return []
     if isinstance(faults, (str, dict, FaultSpec)):
         faults = [faults]
     if not isinstance(faults, (list, tuple)):
         raise ValueError(f"faults: expected a list of fault dicts, a FaultSpec or 'random:<kind>', got {faults!r}")
-    return [_parse_one(f, i, n_rotors, sensor_names) for i, f in enumerate(faults)]
+    return [_parse_one(f, i, n_rotors, sensor_names, tuple(kinds)) for i, f in enumerate(faults)]
 
 
-def _parse_one(spec, index: int, n_rotors: int, sensor_names) -> FaultSpec:
+def _parse_one(spec, index: int, n_rotors: int, sensor_names, kinds) -> FaultSpec:
     where = f"faults[{index}]"
     if isinstance(spec, str):
         prefix, _, kind = spec.partition(":")
-        if prefix != "random" or kind not in KINDS:
-            raise ValueError(f"{where}: string specs must be 'random:<kind>' with kind in {list(KINDS)}, got {spec!r}")
-        target = "random" if kind != "payload" else None
+        if prefix != "random" or kind not in kinds:
+            raise ValueError(f"{where}: string specs must be 'random:<kind>' with kind in {list(kinds)}, got {spec!r}")
+        target = "random" if kind in ROTOR_KINDS + SENSOR_KINDS else None
         spec = {"kind": kind, "target": target, "time": list(RANDOM_ONSET_WINDOW)}
     if isinstance(spec, FaultSpec):
         spec = spec.to_dict()
@@ -77,15 +98,17 @@ def _parse_one(spec, index: int, n_rotors: int, sensor_names) -> FaultSpec:
     if unknown:
         raise ValueError(f"{where}: unknown key(s) {sorted(unknown)}; accepted: {list(_FIELDS)}")
     kind = spec.get("kind")
-    if kind not in KINDS:
-        raise ValueError(f"{where}.kind: {kind!r} is not a fault kind; accepted: {list(KINDS)}")
+    if kind not in kinds:
+        raise ValueError(f"{where}.kind: {kind!r} is not a fault kind of this vehicle; accepted: {list(kinds)}")
+    duration = spec.get("duration", PROPULSION_RISE_TIME if kind in PROPULSION_KINDS else None)
     return FaultSpec(
         kind=kind,
         target=_check_target(kind, spec.get("target"), f"{where}.target", n_rotors, sensor_names),
         time=_check_time(spec.get("time", 0.0), f"{where}.time"),
         magnitude=_check_magnitude(kind, spec.get("magnitude", _DEFAULT_MAGNITUDE[kind]), f"{where}.magnitude"),
-        rate=_check_positive(spec.get("rate"), f"{where}.rate", kind == "loe"),
-        duration=_check_positive(spec.get("duration"), f"{where}.duration", kind in ("payload",) + SENSOR_KINDS),
+        rate=_check_positive(spec.get("rate"), f"{where}.rate", kind in ("loe", "pitot_blockage")),
+        duration=_check_positive(duration, f"{where}.duration",
+                                 kind not in ROTOR_KINDS + ("pitot_blockage",)),
     )
 
 
@@ -103,8 +126,12 @@ def _check_target(kind, target, where, n_rotors, sensor_names):
         if target not in sensor_names:
             raise ValueError(f"{where}: {target!r} is not a sensor; accepted: {list(sensor_names)}")
         return target
+    if kind == "pitot_blockage":
+        if target not in (None,) + PITOT_MODES:
+            raise ValueError(f"{where}: {target!r} is not a pitot blockage mode; accepted: {list(PITOT_MODES)}")
+        return target or "zero"
     if target is not None:
-        raise ValueError(f"{where}: payload faults take no target (got {target!r})")
+        raise ValueError(f"{where}: {kind} faults take no target (got {target!r})")
     return None
 
 
@@ -121,7 +148,7 @@ def _check_time(time, where):
 def _check_magnitude(kind, magnitude, where):
     if magnitude is None:
         return None
-    if kind == "sensor_bias":
+    if kind in ("sensor_bias", "skew_sensor"):
         arr = np.asarray(magnitude, dtype=float)
         if not np.all(np.isfinite(arr)):
             raise ValueError(f"{where}: must be finite, got {magnitude!r}")
@@ -130,6 +157,8 @@ def _check_magnitude(kind, magnitude, where):
         raise ValueError(f"{where}: must be a finite number, got {magnitude!r}")
     if kind in ROTOR_KINDS and not 0 < magnitude <= 1:
         raise ValueError(f"{where}: the fraction of effectiveness lost must be in (0, 1], got {magnitude!r}")
+    if kind in PROPULSION_KINDS and magnitude <= 0:
+        raise ValueError(f"{where}: the parameter's growth factor must be > 0, got {magnitude!r}")
     return float(magnitude)
 
 
@@ -170,7 +199,9 @@ class FaultSchedule:
         self.n_rotors = n_rotors
         self._rotor = [s for s in self.specs if s.kind in ROTOR_KINDS]
         self._payload = [s for s in self.specs if s.kind == "payload"]
-        self._sensor = [s for s in self.specs if s.kind in SENSOR_KINDS]
+        self._sensor = [_as_sensor_fault(s) for s in self.specs if s.kind in SENSOR_KINDS + tuple(NAMED_SENSOR_FAULTS)]
+        self._pitot = [s for s in self.specs if s.kind == "pitot_blockage"]
+        self._propulsion = [s for s in self.specs if s.kind in PROPULSION_KINDS]
         self._stuck: dict[int, np.ndarray] = {}
         self._dicts = [s.to_dict() for s in self.specs]
         self._onsets = [s.time for s in self.specs]
@@ -213,6 +244,30 @@ class FaultSchedule:
                 readings[s.target] = self._stuck.setdefault(i, value.copy()).copy()
         return readings
 
+    def apply_to_pitot(self, t: float, reading: float) -> float:
+        """The pitot airspeed read at t under the pitot blockages in force."""
+        for i, s in enumerate(self._pitot):
+            if t < s.time:
+                continue
+            if s.rate is not None:      # incipient: an offset growing at `rate` (the reading never goes negative)
+                reading = max(reading - s.rate * (t - s.time), 0.0)
+            elif s.target == "zero":
+                reading = 0.0
+            else:
+                reading = self._stuck.setdefault(("pitot", i), reading)
+        return reading
+
+    def propulsion_factors(self, t: float) -> dict:
+        """Factors on the pusher's theta_1, c_v and I_0 at t: 1 + (magnitude - 1) * a sigmoid rising over
+        `duration` s from onset (003 Sec. IV-A, Fig. 6: 10% over 50 s)."""
+        factors = {name: 1.0 for name in PROPULSION_KINDS.values()}
+        for s in self._propulsion:
+            if t >= s.time:
+                x = (t - s.time) / s.duration            # 0..1 over the rise
+                rise = 1.0 / (1.0 + math.exp(-12.0 * (x - 0.5)))   # ~0.0025 at onset, ~0.9975 at the end
+                factors[PROPULSION_KINDS[s.kind]] *= 1.0 + (s.magnitude - 1.0) * rise
+        return factors
+
     def current(self, t: float) -> dict:
         """info["fault"]: the latest fault in force at t, else the next scheduled one (inactive); a fresh dict."""
         if not self._current_start <= t < self._current_until:
@@ -237,6 +292,17 @@ class FaultSchedule:
     def as_dicts(self) -> list[dict]:
         """info["faults"]: the resolved schedule (fresh dicts)."""
         return [dict(d) for d in self._dicts]
+
+
+def _as_sensor_fault(spec: FaultSpec) -> FaultSpec:
+    """A named quad-plane sensor fault as the generic sensor fault on its channel (skew_sensor with a
+    magnitude is a bias, without one it sticks)."""
+    if spec.kind not in NAMED_SENSOR_FAULTS:
+        return spec
+    kind, target = NAMED_SENSOR_FAULTS[spec.kind]
+    if spec.kind == "skew_sensor" and spec.magnitude is not None:
+        kind = "sensor_bias"
+    return dataclasses.replace(spec, kind=kind, target=target)
 
 
 def _public(value):

@@ -128,3 +128,68 @@ def _perturb(q, half_angles) -> np.ndarray:
         w - x * a - y * b - z * c,
     ))
     return out / np.sqrt(out @ out)
+
+
+@dataclass(frozen=True)
+class QuadPlaneSensorConfig(SensorConfig):
+    """The quadrotor's sensors with outdoor navigation rates, plus the quad-plane's own (issue 5)."""
+
+    position_noise: float = 0.3           # m, navigation-filter position (GNSS-aided), assumed
+    velocity_noise: float = 0.05          # m/s, navigation-filter velocity, assumed
+    position_hz: float = 50.0             # Hz, navigation-filter output rate, assumed
+    gyro_vibration: float = 0.01          # rad/s, larger airframe, assumed
+    accel_vibration: float = 0.3          # m/s^2, assumed
+    rotor_speed_noise: float = 2.0        # rad/s, ESC telemetry of the hover motors, assumed
+    pitot_noise: float = 0.3              # m/s, differential-pressure airspeed (MS4525-class at cruise), assumed
+    pitot_time_constant: float = 0.05     # s, pneumatic lag of the pitot line, assumed
+    gnss_velocity_noise: float = 0.0064   # m/s, 001 Table 1: sigma_Vx^2 = 4.1e-5 (m/s)^2 (V_z 1.4e-4: 0.012)
+    gnss_hz: float = 10.0                 # Hz, GNSS velocity rate (u-blox class receiver), assumed
+    skew_noise: float = 0.002             # rad, wing-angle encoder, assumed
+    pusher_speed_noise: float = 0.71      # rad/s, 003 Sec. IV-B: omega noise covariance 5e-1
+    pusher_current_noise: float = 0.0032  # A, 003 Sec. IV-B: I_e noise covariance 1e-5
+
+
+class QuadPlaneSensors:
+    """Quad-plane sensors: the quadrotor set (IMU, attitude, navigation position and velocity, hover-rotor ESCs)
+    plus pitot airspeed (noise and first-order lag), GNSS velocity (sample-and-hold), skew angle and the
+    pusher's speed and current."""
+
+    def __init__(self, config: QuadPlaneSensorConfig, hover_omega: float, dt: float, agent_dt: float):
+        self.config = config
+        self.base = QuadrotorSensors(config, 4, hover_omega, agent_dt)
+        self._pitot_alpha = 1.0 - np.exp(-agent_dt / config.pitot_time_constant) if config.pitot_time_constant else 1.0
+        self._gnss_steps = max(1, int(round(1.0 / (config.gnss_hz * agent_dt))))
+        c = config
+        self._scales = np.array([c.pitot_noise, c.gnss_velocity_noise, c.gnss_velocity_noise,
+                                 2.0 * c.gnss_velocity_noise, c.skew_noise, c.pusher_speed_noise,
+                                 c.pusher_current_noise])
+
+    def reset(self, rng: np.random.Generator, airspeed: float = 0.0) -> None:
+        self.base.reset(rng)
+        self._rng = rng
+        self._pitot = airspeed
+        self._gnss = None
+        self._count = 0
+
+    def advance_rotor_phase(self, omega: np.ndarray, dt: float) -> None:
+        self.base.advance_rotor_phase(omega, dt)
+
+    def read(self, position, velocity, quat, body_rates, specific_force, hover_omega, airspeed_x: float,
+             skew: float, pusher_omega: float, pusher_current: float) -> dict:
+        """One sample of every sensor. `airspeed_x` is the air velocity along the pitot (body x), m/s."""
+        common = self.base.read(position, velocity, quat, body_rates, specific_force, hover_omega)
+        n = self._rng.standard_normal(7) * self._scales
+        self._pitot += self._pitot_alpha * (max(airspeed_x, 0.0) - self._pitot)   # a pitot reads forward flow only
+        if self._count % self._gnss_steps == 0:
+            self._gnss = velocity + n[1:4]
+        self._count += 1
+        return {
+            "gyro": common["gyro"], "accel": common["accel"], "attitude": common["attitude"],
+            "position": common["position"], "velocity": common["velocity"],
+            "pitot_airspeed": np.array([max(self._pitot + n[0], 0.0)]),
+            "gnss_velocity": self._gnss.copy(),
+            "skew": np.array([skew + n[4]]),
+            "hover_rotor_speed": common["rotor_speed"],
+            "pusher_speed": np.array([max(pusher_omega + n[5], 0.0)]),
+            "pusher_current": np.array([pusher_current + n[6]]),
+        }

@@ -5,6 +5,10 @@
   along the path, plus 004's sinusoidal speed excitation
   v = 0.5 sin(2.51t)cos(3.14t) + 0.5 sin(3.14t)cos(4.19t) + 0.5 sin(4.19t)cos(6.28t),
   optionally turning the heading by 90 deg at each corner (004's second scenario).
+- mission (quad-plane, issue 5): take off at home, hover, transition heading north, fly `laps` of a circle
+  of `circuit_radius` m through home (centre east of home, clockwise seen from above) at `cruise_airspeed`,
+  back-transition, return to home and land. The phases are the autopilot's (`agents.quadplane_autopilot`);
+  the task's own reference is home at the mission altitude.
 """
 from __future__ import annotations
 
@@ -81,12 +85,33 @@ class SquareTask:
         return Reference(np.array([north, east, -self.altitude]), np.array([*(v * direction), 0.0]), yaw)
 
 
-TASKS = {"hover": HoverTask, "square": SquareTask}
+@dataclass(frozen=True)
+class MissionTask:
+    """The quad-plane mission (see the module docstring); distances m, speeds m/s, NED."""
+
+    name = "mission"
+    altitude: float = 30.0
+    cruise_airspeed: float = 18.0
+    circuit_radius: float = 150.0
+    laps: float = 1.0
+    climb_rate: float = 2.0
+    descent_rate: float = 1.0
+    hover_time: float = 3.0       # s held at altitude before the transition and after the return
+
+    @property
+    def circuit_centre(self) -> np.ndarray:
+        return np.array([0.0, self.circuit_radius])
+
+    def reference(self, t: float) -> Reference:
+        return Reference(np.array([0.0, 0.0, -self.altitude]), np.zeros(3), 0.0)
 
 
-def make_task(task) -> HoverTask | SquareTask:
+TASKS = {"hover": HoverTask, "square": SquareTask, "mission": MissionTask}
+
+
+def make_task(task) -> HoverTask | SquareTask | MissionTask:
     """A task from its name or a dict {"name": ..., <field>: value}; bad input raises ValueError."""
-    if isinstance(task, (HoverTask, SquareTask)):
+    if isinstance(task, tuple(TASKS.values())):
         return task
     options = {}
     if isinstance(task, dict):
@@ -102,6 +127,7 @@ def make_task(task) -> HoverTask | SquareTask:
     for key, value in options.items():
         if not isinstance(value, bool) and not (isinstance(value, (int, float)) and np.isfinite(value)):
             raise ValueError(f"task[{key!r}]: must be a finite number or a bool, got {value!r}")
-    if options.get("altitude", 1.0) <= 0 or options.get("side", 1.0) <= 0:
-        raise ValueError("task: 'altitude' and 'side' must be > 0")
+    for key in ("altitude", "side", "cruise_airspeed", "circuit_radius", "laps", "climb_rate", "descent_rate"):
+        if options.get(key, 1.0) <= 0:
+            raise ValueError(f"task[{key!r}]: must be > 0, got {options[key]!r}")
     return cls(**options)
