@@ -1,12 +1,13 @@
 """Acceptance runs and the comparison plot for `IvChangeDetector` (004 Sec. 5.1 scenario, issue 3).
 
-    python -m ftcgym.fdd.plots_iv --seeds 0-9 --plot /tmp/iv_change.png
+    python -m ftcgym.fdd.plots_iv --seeds 100-109 --workers 1 --plot /tmp/iv_change.png
 
 Flies the square task (with and without 90 deg heading changes) in light Dryden turbulence and a
 (1, -1, 0) m/s mean wind, mass 0.5 -> 1 kg between 40 and 42 s, with the nominal controller, and
-prints each seed's alarm time. The threshold and gate were tuned on seeds 1000-1019 (after the
-accelerometer fix of 5a9aa0e, on recorded episodes replayed offline: the detector does not act on the
-flight); report on others (held-out: 100-109).
+prints each seed's alarm time. The alarm rule on the IV estimate c_hat and its prefilter were tuned on
+env seeds 1000-1019 (recorded episodes replayed offline: the detector does not act on the flight);
+report on others (held-out: 100-109 here, or `ftcgym bench --seed 100`, whose episode seeds are hashed
+from the base seed and so differ from both).
 A script, not part of the detector: it drives the simulator, so its imports stay inside the functions
 (`fdd` itself imports no simulator code, DESIGN.md).
 """
@@ -52,7 +53,8 @@ def fly(seed: int, heading_changes: bool, record: bool = False, **detector_kwarg
             res = six_dof.update(obs)
             if smooth.x is None:
                 smooth.start(res)
-            trace.append((info["time"], *obs["fdd/iv_change/J"], *smooth.step(res)))
+            trace.append((info["time"], *obs["fdd/iv_change/J"], *smooth.step(res),
+                          obs["fdd/iv_change/c_hat"][0] / detector.c))
         if terminated or truncated:
             break
     # Per-update cost, timed apart from the simulation on the last observation.
@@ -73,8 +75,11 @@ def _fly(args):
 def acceptance(seeds, workers: int = 2) -> list[dict]:
     """Fly every seed with and without heading changes; print alarm times and the pass counts."""
     jobs = [(s, h) for h in (False, True) for s in seeds]
-    with Pool(workers) as pool:
-        rows = pool.map(_fly, jobs)
+    if workers <= 1:
+        rows = [_fly(job) for job in jobs]
+    else:
+        with Pool(workers) as pool:
+            rows = pool.map(_fly, jobs)
     for heading in (False, True):
         print(f"\nheading changes: {heading}")
         print(" seed  alarm_time  verdict")
@@ -91,7 +96,7 @@ def acceptance(seeds, workers: int = 2) -> list[dict]:
 
 
 def plot(seed: int, path: str, heading_changes: bool = False) -> str:
-    """IV costs J1, J2 beside the low-passed 6-DOF residual of 004 Sec. 4.1 over one episode."""
+    """IV costs J1, J2 and the IV estimate c_hat / c_0 beside the low-passed 6-DOF residual of 004 Sec. 4.1."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -99,8 +104,8 @@ def plot(seed: int, path: str, heading_changes: bool = False) -> str:
     from ftcgym.fdd.iv_change import IvChangeDetector
 
     row = fly(seed, heading_changes, record=True)
-    t, J, res = row["trace"][:, 0], row["trace"][:, 1:3], row["trace"][:, 3:]
-    fig, (ax_acc, ax_rate, ax_iv) = plt.subplots(3, 1, figsize=(10, 8), sharex=True)
+    t, J, res, ratio = row["trace"][:, 0], row["trace"][:, 1:3], row["trace"][:, 3:7], row["trace"][:, 7]
+    fig, (ax_acc, ax_rate, ax_iv, ax_c) = plt.subplots(4, 1, figsize=(10, 10), sharex=True)
     ax_acc.plot(t, res[:, 2], label="$a_x - a_{x,s}$")
     ax_acc.plot(t, res[:, 3], label="$a_y - a_{y,s}$")
     ax_acc.set_ylabel("m/s$^2$")
@@ -108,16 +113,20 @@ def plot(seed: int, path: str, heading_changes: bool = False) -> str:
     ax_rate.plot(t, res[:, 0], label="$p - p_s$")
     ax_rate.plot(t, res[:, 1], label="$q - q_s$")
     ax_rate.set_ylabel("rad/s")
-    ax_iv.semilogy(t, np.maximum(J[:, 0], 1e-8), label="$J_{IV1}$ (x)")
-    ax_iv.semilogy(t, np.maximum(J[:, 1], 1e-8), label="$J_{IV2}$ (y)")
-    threshold = IvChangeDetector.__init__.__kwdefaults__["threshold"]
-    ax_iv.axhline(threshold, color="k", ls="--", lw=1, label="threshold")
+    ax_iv.semilogy(t, np.maximum(J[:, 0], 1e-10), label="$J_{IV1}$ (x)")
+    ax_iv.semilogy(t, np.maximum(J[:, 1], 1e-10), label="$J_{IV2}$ (y)")
+    ax_iv.set_ylim(1e-9, None)
+    ax_iv.set_title("IV cost (004 eq. 30, lam 0.999, N_w 500) of the sensor-to-sensor residuals (29)")
+    ax_c.plot(t, ratio, color="C2", label=r"$\hat c / c_0$ (IV estimate of $\lambda_1/m$)")
+    ax_c.axhline(1.0, color="0.5", lw=1)
+    threshold = IvChangeDetector.__init__.__kwdefaults__["ratio_threshold"]
+    ax_c.axhline(threshold, color="k", ls="--", lw=1, label="alarm threshold")
     if row["alarm_time"] is not None:
-        ax_iv.axvline(row["alarm_time"], color="r", lw=1, label=f"alarm {row['alarm_time']:.2f} s")
-    ax_iv.set_ylim(1e-7, None)
-    ax_iv.set_title("IV cost (004 eq. 30) of the sensor-to-sensor residuals (29)")
-    ax_iv.set_xlabel("time (s)")
-    for ax in (ax_acc, ax_rate, ax_iv):
+        ax_c.axvline(row["alarm_time"], color="r", lw=1, label=f"alarm {row['alarm_time']:.2f} s")
+    ax_c.set_ylim(-0.2, 1.6)
+    ax_c.set_title("IV estimate of c (the detector's test statistic)")
+    ax_c.set_xlabel("time (s)")
+    for ax in (ax_acc, ax_rate, ax_iv, ax_c):
         ax.axvspan(ONSET, ONSET + RAMP, color="0.85", zorder=0)
         ax.legend(loc="upper left", fontsize=8)
     fig.suptitle(f"mass 0.5 -> 1 kg at 40-42 s (shaded), light turbulence, seed {seed}"
@@ -135,10 +144,10 @@ def _seeds(text: str) -> list[int]:
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seeds", default="0-9", help="seed range, e.g. 0-9 (tuning used 1000-1019)")
+    parser.add_argument("--seeds", default="100-109", help="seed range, e.g. 100-109 (tuning used 1000-1019)")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--plot", default=None, help="PNG path for the comparison plot")
-    parser.add_argument("--plot-seed", type=int, default=0)
+    parser.add_argument("--plot-seed", type=int, default=100)
     parser.add_argument("--plot-heading-changes", action="store_true", help="plot the heading-change variant")
     args = parser.parse_args(argv)
     if args.seeds != "none":
