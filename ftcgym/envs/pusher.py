@@ -9,7 +9,8 @@
 
 003 takes the current I_e as measured; a simulator must produce it. We add the usual DC-motor electrical
 equation (our assumption, not in 003): the ESC applies u V_bat, so I_e = (u V_bat - k_e w) / R, clipped
-at 0 (no regeneration). Erratum (seeds/README.md): 003 eq. (9) prints y = -k_e I_e; eq. (1) gives
+at 0 (no regeneration) and at the ESC's current limit (without it a throttle step from rest would draw
+V_bat / R = 444 A and kick the airframe with 8 N m). Erratum (seeds/README.md): 003 eq. (9) prints y = -k_e I_e; eq. (1) gives
 y = k_e I_e - Theta dw/dt, which is what `steady_state_current` inverts.
 
 Terms are written expanded in n and V (C_Q0 n^2 + C_Q1 n V / D + C_Q2 V^2 / D^2), which equals eq. (2)-(4)
@@ -91,7 +92,8 @@ class PusherMotor:
 
     def _electric_current(self, throttle: float, omega: float) -> float:
         p = self.params
-        return max((throttle * p.battery_voltage - p.pusher_motor_constant * omega) / p.pusher_resistance, 0.0)
+        current = (throttle * p.battery_voltage - p.pusher_motor_constant * omega) / p.pusher_resistance
+        return min(max(current, 0.0), p.pusher_max_current)   # no regeneration; the ESC's current limit
 
     def step(self, throttle: float, axial_airspeed: float, dt: float) -> None:
         """Advance w by dt with 003 eq. (1), linearly implicit in w so any dt is stable."""
@@ -104,7 +106,7 @@ class PusherMotor:
         current = self._electric_current(u, w)
         q_a = pusher_aero_torque(p, w, axial_airspeed, self.theta_1)
         net = k_e * (current - self.I_0) - self.c_v * w - q_a                    # 003 eq. (1) right side
-        back_emf_slope = k_e * k_e / p.pusher_resistance if current > 0.0 else 0.0
+        back_emf_slope = k_e * k_e / p.pusher_resistance if 0.0 < current < p.pusher_max_current else 0.0
         damping = back_emf_slope + self.c_v + _aero_torque_slope(p, w, axial_airspeed, self.theta_1)
         w_new = w + dt * net / (p.pusher_inertia + dt * max(damping, 0.0))
         w_new = min(max(w_new, 0.0), p.pusher_omega_max)   # static friction holds it at 0; ESC speed limit

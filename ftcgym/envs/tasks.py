@@ -5,10 +5,11 @@
   along the path, plus 004's sinusoidal speed excitation
   v = 0.5 sin(2.51t)cos(3.14t) + 0.5 sin(3.14t)cos(4.19t) + 0.5 sin(4.19t)cos(6.28t),
   optionally turning the heading by 90 deg at each corner (004's second scenario).
-- mission (quad-plane, issue 5): take off at home, hover, transition heading north, fly `laps` of a circle
-  of `circuit_radius` m through home (centre east of home, clockwise seen from above) at `cruise_airspeed`,
-  back-transition, return to home and land. The phases are the autopilot's (`agents.quadplane_autopilot`);
-  the task's own reference is home at the mission altitude.
+- mission (quad-plane, issue 5): take off at home, hover, transition along the take-off heading (into the
+  mean wind; north in calm air), fly `laps` of a circle of `circuit_radius` m through home (centre to the
+  right of that heading: clockwise seen from above) at `cruise_airspeed`, back-transition, return to home
+  and land. The phases are the autopilot's (`agents.quadplane_autopilot`); the task's own reference is
+  home at the mission altitude.
 """
 from __future__ import annotations
 
@@ -98,9 +99,9 @@ class MissionTask:
     descent_rate: float = 1.0
     hover_time: float = 3.0       # s held at altitude before the transition and after the return
 
-    @property
-    def circuit_centre(self) -> np.ndarray:
-        return np.array([0.0, self.circuit_radius])
+    def circuit_centre(self, heading: float) -> np.ndarray:
+        """North, east of the circle's centre for a transition along `heading` (rad): to its right."""
+        return self.circuit_radius * np.array([-np.sin(heading), np.cos(heading)])
 
     def reference(self, t: float) -> Reference:
         return Reference(np.array([0.0, 0.0, -self.altitude]), np.zeros(3), 0.0)

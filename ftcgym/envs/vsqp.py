@@ -114,6 +114,7 @@ class VsqpParams:
     pusher_viscous_friction: float     # c_v, N m s (003 eq. 1); fault handle viscous_friction
     pusher_icing: float                # theta_1 nominal (003 eq. 5): 1
     battery_voltage: float             # V
+    pusher_max_current: float          # A, ESC current limit
     pusher_omega_max: float            # rad/s, limit of the speed (trim and observation bounds)
     pusher_spin_direction: float       # +1: propeller spins positively about body +x
     # Wing (001 eq. 18-30).
@@ -225,6 +226,7 @@ VSQP = VsqpParams(
     pusher_viscous_friction=1.0e-5,                       # assumed: ~0.01 N m bearing/eddy torque at 1,000 rad/s
     pusher_icing=1.0,                                     # 003 eq. 5 nominal theta_1* = 1
     battery_voltage=22.2,                                 # assumed 6S LiPo nominal (the MN3520 400 kV is a 6S motor)
+    pusher_max_current=60.0,                              # assumed: 60 A ESC (full throttle holds ~46 A static)
     pusher_omega_max=10000.0 * RPM,                       # assumed: above the full-throttle static ~9,900 RPM
     pusher_spin_direction=1.0,                            # assumed: clockwise seen from behind (+x)
     wing_area=0.5,                                        # assumed, see the table

@@ -1,0 +1,460 @@
+"""The quad-plane autopilot: a mission state machine over a cascaded controller scheduled on airspeed.
+
+Larocque (001 Sec. 2, Sec. 8.1) describes the VSQP's autopilot: cascaded INDI with weighted-least-squares
+allocation, where the airspeed sets (1) the control surfaces' effectiveness (eq. 8.3, ~V^2), (2) the wing's
+lift in the guidance loop (eq. 8.4-8.6), (3) the wing skew schedule and (4) the airspeed loop. A wrong
+airspeed therefore corrupts all four, which is what made pitot faults destabilising in its flight tests
+(001 Sec. 1). This autopilot keeps those four dependencies on the airspeed it is GIVEN (`act(...,
+airspeed=...)`), so a policy that chooses the airspeed source (QuadPlaneAutopilot-v0) decides its fate.
+
+Structure, per agent step:
+1. Mission (`MissionPlan`): take-off, hover, transition heading north, the circuit of `MissionTask`, back
+   transition, return, landing. Phase changes use navigation data and the given airspeed.
+2. Guidance: a desired NED acceleration from position/velocity errors (quad phases) or from the circle's
+   cross-track error and the altitude (forward flight).
+3. Outer loop: the acceleration becomes an attitude and a hover-rotor collective. The wing's lift, from the
+   model at the given airspeed, the measured skew and alpha ~ pitch (001 eq. 8.6), is subtracted from what
+   the rotors must carry; in forward flight the pitch follows the altitude error around the trim pitch.
+4. Inner loop: geometric attitude error (Lee et al. 2010) -> rate command -> angular acceleration -> moment
+   (model inversion with the airframe's own aerodynamic moment at the given airspeed), allocated over the
+   hover rotors and the surfaces by regularised weighted least squares; the surfaces' columns come from the
+   model at the given airspeed (so they vanish at a zero reading).
+5. Pusher: PI on the given airspeed toward the phase's target with the trim throttle as feed-forward.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..envs.pusher import throttle_for_speed
+from ..envs.quadplane_aero import aero_wrench, skew_schedule
+from ..envs.tasks import MissionTask
+from ..envs.vehicles import GRAVITY
+from ..geometry import cross, rotation_matrix
+
+PHASES = ("takeoff", "hover", "transition", "cruise", "back_transition", "return", "land", "landed")
+QUAD_PHASES = ("takeoff", "hover", "return", "land")
+NO_ROTORS = np.zeros(4)
+ONES = np.ones(4)
+
+
+@dataclass
+class AutopilotGains:
+    # quad-mode guidance
+    position: tuple = (0.6, 0.6, 1.2)        # 1/s^2 per m
+    velocity: tuple = (1.2, 1.2, 2.0)        # 1/s
+    position_integral: float = 0.05          # 1/s^3
+    integral_zone: float = 3.0               # m, position error inside which the integral runs
+    integral_limit: float = 1.5              # m/s^2
+    max_horizontal_speed: float = 9.0        # m/s, quad-mode velocity command limit (rotor drag caps ~10 m/s)
+    max_tilt_deg: float = 25.0
+    max_turn_rate: float = 0.4               # rad/s, heading-command slew in quad mode
+    # forward-flight guidance
+    altitude: float = 0.3                    # 1/s, climb-rate command per m of altitude error
+    climb_rate_gain: float = 0.08            # rad of pitch per m/s of climb-rate error
+    climb_accel: float = 1.0                 # 1/s, rotor-assisted vertical acceleration per m/s of error
+    altitude_integral: float = 0.02          # rad of pitch per m of climb-rate error integrated
+    max_pitch_deg: float = 12.0
+    max_bank_deg: float = 30.0
+    cross_track: float = 0.01                # rad of course correction per m off the circle
+    rotor_assist_floor: float = 0.1          # share of the weight below which the rotors stay off in cruise
+    cross_track_limit_deg: float = 30.0
+    course: float = 0.35                     # 1/s, course-rate demand per rad of course error
+    # inner loop
+    attitude: tuple = (2.5, 2.5, 1.2)        # 1/s
+    rate: tuple = (6.0, 6.0, 3.0)            # 1/s (the hover motors lag 0.08 s)
+    max_rate: tuple = (2.0, 2.0, 1.0)        # rad/s
+    rate_integral: tuple = (0.0, 0.0, 0.0)            # 1/s^2 (off: with the 0.08 s motor lag it oscillated)
+    rate_integral_limit: tuple = (40.0, 10.0, 10.0)   # rad/s^2
+    surface_weight: float = 1.0              # WLS cost of a radian of surface relative to a newton of rotor
+    rotor_weight: float = 1.0
+    # airspeed (pusher)
+    airspeed_p: float = 0.08                 # throttle per m/s
+    airspeed_i: float = 0.03                 # throttle per m/s s
+    throttle_slew: float = 0.5               # 1/s
+    # mission
+    transition_done_speed_margin: float = 1.0   # m/s below cruise speed that ends the transition
+    back_transition_done_speed: float = 3.0     # m/s
+    back_transition_decel: float = 1.5          # m/s^2, typical deceleration of the back transition
+
+
+class QuadPlaneAutopilot:
+    """Flies `MissionTask` on QuadPlane-v0 actions; `act(obs, info, airspeed=None)` uses the pitot reading
+    when no airspeed is given. `phase` is the mission phase (PHASES)."""
+
+    def __init__(self, params, agent_hz: float, task: MissionTask, gains: AutopilotGains | None = None):
+        self.params, self.task = params, task
+        self.gains = gains or AutopilotGains()
+        self.dt = 1.0 / agent_hz
+        g = self.gains
+        self._kp, self._kv = np.asarray(g.position, float), np.asarray(g.velocity, float)
+        self._katt, self._krate = np.asarray(g.attitude, float), np.asarray(g.rate, float)
+        self._max_rate = np.asarray(g.max_rate, float)
+        self._krate_i = np.asarray(g.rate_integral, float)
+        self._rate_integral_limit = np.asarray(g.rate_integral_limit, float)
+        self._inertia = np.asarray(params.inertia, float)
+        self._f_max = params.hover_thrust_coefficient * params.hover_omega_max ** 2
+        self._yaw_per_newton = params.hover_torque_coefficient / params.hover_thrust_coefficient
+        self._regularisation = 1e-3 * np.diag([g.rotor_weight] * 4 + [g.surface_weight] * 3)
+        self._limits = np.asarray(params.surface_limit, float)
+        self.reset()
+
+    def reset(self, obs: dict | None = None, info: dict | None = None) -> None:
+        """Start a mission; the take-off heading (from `obs`, else north) orients the transition and circuit."""
+        self._mission_heading = _Navigation(obs).heading if obs is not None else 0.0
+        self._centre = self.task.circuit_centre(self._mission_heading)
+        self.phase = "takeoff"
+        self._phase_start = 0.0
+        self._time = 0.0
+        self._throttle_integral = 0.0
+        self._throttle = 0.0
+        self._position_integral = np.zeros(3)
+        self._rate_integral = np.zeros(3)
+        self._altitude_integral = 0.0
+        self._heading = self._mission_heading
+        self._course_angle = None
+        self._swept = 0.0
+        self.airspeed_used = 0.0
+        self.target = np.array([0.0, 0.0, -self.task.altitude])
+
+    # ------------------------------------------------------------------ public
+    def act(self, obs: dict, info: dict | None = None, airspeed: float | None = None) -> np.ndarray:
+        airspeed = float(obs["pitot_airspeed"][0]) if airspeed is None else float(airspeed)
+        if not math.isfinite(airspeed):
+            raise ValueError(f"airspeed: must be finite, got {airspeed!r}")
+        self.airspeed_used = airspeed = max(airspeed, 0.0)
+        self._time = float(info["time"]) if info and "time" in info else self._time + self.dt
+        nav = _Navigation(obs)
+        self._advance_phase(nav, airspeed)
+        if self.phase == "landed":
+            return np.zeros(9, dtype=np.float32)
+        accel, yaw, pitch = self._guidance(nav, airspeed)
+        attitude, collective = self._outer_loop(nav, accel, yaw, pitch, airspeed)
+        rotors, surfaces = self._inner_loop(nav, attitude, collective, airspeed)
+        return self._action(rotors, surfaces, self._pusher(airspeed), self._skew_command(airspeed))
+
+    # ------------------------------------------------------------------ mission
+    def _advance_phase(self, nav, airspeed: float) -> None:
+        t, task, g = self._time, self.task, self.gains
+        altitude = -nav.position[2]
+        home = np.array([0.0, 0.0, -task.altitude])
+        if self.phase == "takeoff" and altitude > task.altitude - 0.5:
+            self._enter("hover")
+        elif self.phase == "hover" and t - self._phase_start > task.hover_time:
+            self._enter("transition")
+        elif self.phase == "transition" and airspeed > task.cruise_airspeed - g.transition_done_speed_margin:
+            self._enter("cruise")
+            self._course_angle = self._circle_angle(nav.position)
+        elif self.phase == "cruise":
+            angle = self._circle_angle(nav.position)
+            self._swept += _wrap(angle - self._course_angle)
+            self._course_angle = angle
+            # leave the circle early enough that the deceleration (~back_transition_decel) ends over home
+            ground_speed = float(np.hypot(*nav.velocity[:2]))
+            lead = max(ground_speed ** 2 / (2.0 * g.back_transition_decel), 20.0)
+            if abs(self._swept) >= 2.0 * np.pi * task.laps - lead / task.circuit_radius:
+                self._enter("back_transition")
+        elif self.phase == "back_transition" and min(airspeed, np.hypot(*nav.velocity[:2])) < g.back_transition_done_speed:
+            self._enter("return")
+            self._heading = nav.heading          # turn home from where the nose points
+        elif self.phase == "return" and np.linalg.norm(nav.position - home) < 3.0 and np.linalg.norm(nav.velocity) < 1.5:
+            self._enter("land")
+        elif self.phase == "land" and altitude < 0.5 * self.params.body_size[2] + 0.15 and abs(nav.velocity[2]) < 0.2:
+            self._enter("landed")
+
+    def _enter(self, phase: str) -> None:
+        self.phase, self._phase_start = phase, self._time
+        self._position_integral[:] = 0.0       # each phase has its own trim (attitude, flow, rotor use)
+
+    def _circle_angle(self, position) -> float:
+        d = position[:2] - self._centre
+        return math.atan2(d[1], d[0])
+
+    # ------------------------------------------------------------------ guidance
+    def _guidance(self, nav, airspeed):
+        """Desired NED acceleration, yaw, and in forward flight the pitch (None: the outer loop tilts)."""
+        task = self.task
+        home = np.array([0.0, 0.0, -task.altitude])
+        if self.phase in QUAD_PHASES:
+            velocity_ref = np.zeros(3)
+            target = home.copy()
+            if self.phase == "land":
+                target[2] = nav.position[2] + 1.0            # always below: sink at the descent rate
+                velocity_ref[2] = task.descent_rate
+            self.target = target
+            return self._quad_acceleration(nav, target, velocity_ref), self._quad_heading(nav, target), None
+        if self.phase in ("transition", "back_transition"):
+            # hold the line through home heading north and the altitude; the pusher (or drag) sets the speed
+            # hold the line through home along the mission heading, and the altitude; the pusher (or the
+            # drag) owns the speed along it, so no tilt along the track
+            along = np.array([math.cos(self._mission_heading), math.sin(self._mission_heading), 0.0])
+            on_line = along * float(nav.position[:2] @ along[:2])
+            self.target = on_line + np.array([0.0, 0.0, -task.altitude])
+            accel = self._quad_acceleration(nav, self.target, along * float(nav.velocity @ along))
+            accel -= along * float(accel @ along)
+            return accel, self._mission_heading, None
+        return self._circle_guidance(nav, airspeed)
+
+    def _quad_heading(self, nav, target) -> float:
+        """Nose toward home while returning from more than 5 m (tail first, the fin destabilises the
+        airframe), else into the mean wind (the take-off heading), where the fin weathervanes."""
+        offset = target[:2] - nav.position[:2]
+        wanted = self._mission_heading             # into the mean wind
+        if self.phase == "return" and np.hypot(*offset) > 5.0:
+            wanted = math.atan2(offset[1], offset[0])
+        # turn at a limited rate: a large yaw error would leak into roll and pitch through the attitude error
+        step = self.gains.max_turn_rate * self.dt
+        self._heading = _wrap(self._heading + float(np.clip(_wrap(wanted - self._heading), -step, step)))
+        return self._heading
+
+    def _quad_acceleration(self, nav, target, velocity_ref) -> np.ndarray:
+        """PD on position and velocity plus an integral near the target (wind and the airframe's unmodelled
+        forces: the autopilot does not know where the flow comes from while hovering)."""
+        g = self.gains
+        error = target - nav.position
+        velocity_cmd = velocity_ref + self._kp / self._kv * error
+        horizontal = np.hypot(*velocity_cmd[:2])
+        if horizontal > g.max_horizontal_speed:
+            velocity_cmd[:2] *= g.max_horizontal_speed / horizontal
+        velocity_cmd[2] = np.clip(velocity_cmd[2], -self.task.climb_rate, self.task.descent_rate)
+        near = np.abs(error) < g.integral_zone
+        limit = g.integral_limit
+        self._position_integral = np.clip(self._position_integral + g.position_integral * near * error * self.dt,
+                                          -limit, limit)
+        return self._kv * (velocity_cmd - nav.velocity) + self._position_integral
+
+    def _circle_guidance(self, nav, airspeed):
+        """Course along the circle's tangent (clockwise), bent toward the circle by the cross-track error;
+        lateral acceleration = speed x (the circle's turn rate + a course correction). Altitude: a climb-rate
+        command, flown by pitch around the trim pitch (and by the rotors' collective where the wing falls
+        short)."""
+        g, task = self.gains, self.task
+        d = nav.position[:2] - self._centre
+        radius = float(np.hypot(*d))
+        radial = d / max(radius, 1e-6)
+        tangent = np.array([-radial[1], radial[0]])      # clockwise seen from above (NED: north, then east)
+        limit = math.radians(g.cross_track_limit_deg)
+        correction = float(np.clip(g.cross_track * (radius - task.circuit_radius), -limit, limit))  # outside: turn in
+        course_ref = math.atan2(tangent[1], tangent[0]) + correction
+        speed = max(float(np.hypot(*nav.velocity[:2])), 1.0)
+        course = math.atan2(nav.velocity[1], nav.velocity[0])
+        lateral = speed * (speed / task.circuit_radius + g.course * _wrap(course_ref - course))
+        accel = np.zeros(3)
+        accel[:2] = lateral * np.array([-math.sin(course), math.cos(course)])   # + is to the right of the course
+        climb_cmd = float(np.clip(g.altitude * (task.altitude + nav.position[2]), -2.0, 2.0))   # m/s, up
+        climb_error = climb_cmd + nav.velocity[2]            # climb rate = -v_down
+        self._altitude_integral = float(np.clip(self._altitude_integral + g.altitude_integral * climb_error * self.dt,
+                                                -0.1, 0.1))
+        accel[2] = -g.climb_accel * climb_error
+        self.target = np.array([*(self._centre + radial * task.circuit_radius), -task.altitude])
+        pitch = self._trim_pitch(airspeed) + g.climb_rate_gain * climb_error + self._altitude_integral
+        return accel, course, pitch
+
+    # ------------------------------------------------------------------ outer loop
+    def _outer_loop(self, nav, accel, yaw, pitch, airspeed):
+        """Attitude (rotation matrix) and hover-rotor collective (N) for the desired acceleration."""
+        m = self.params.mass
+        force = m * (accel - np.array([0.0, 0.0, GRAVITY]))            # NED, what rotors + wing must give
+        lift = self._wing_lift(nav, airspeed)                           # N, along body -z
+        if pitch is None:
+            tilt_limit = math.radians(self.gains.max_tilt_deg)
+            axis = _limit_tilt(force / max(np.linalg.norm(force), 1e-6), tilt_limit)
+            R_des = _attitude_from_axis(axis, yaw)
+        else:
+            right = np.array([-math.sin(yaw), math.cos(yaw)])
+            bank_limit = math.radians(self.gains.max_bank_deg)
+            bank = float(np.clip(math.atan2(float(accel[:2] @ right), GRAVITY), -bank_limit, bank_limit))
+            pitch = float(np.clip(pitch, -math.radians(self.gains.max_pitch_deg), math.radians(self.gains.max_pitch_deg)))
+            R_des = _euler_matrix(bank, pitch, yaw)
+        needed = float(-force @ R_des[:, 2]) - lift                    # along -z_des
+        if self.phase == "cruise" and needed < self.gains.rotor_assist_floor * m * GRAVITY:
+            needed = 0.0                       # the wing flies; the rotors stay off rather than flicker
+        return R_des, max(needed, 0.0)
+
+    def _wing_lift(self, nav, airspeed) -> float:
+        """Lift along body -z from the model at the given airspeed, the measured skew and alpha = pitch minus
+        flight-path angle (001 eq. 8.6 takes the pitch, i.e. level flight)."""
+        if airspeed < 1.0 or self.phase in QUAD_PHASES:    # hovering, the flow's direction is unknown
+            return 0.0
+        air = nav.air_velocity(airspeed)
+        force, _ = aero_wrench(self.params, air, np.zeros(3), nav.skew, np.zeros(3), NO_ROTORS, ONES, 0.0, 0.0)
+        return float(-force[2])
+
+    def _trim_pitch(self, airspeed: float) -> float:
+        """Pitch that makes the wing carry the weight at this airspeed, by the model (bisection on alpha)."""
+        if airspeed < self.params.transition_end_speed:
+            return 0.0
+        weight = self.params.mass * GRAVITY
+        lo, hi = math.radians(-2.0), math.radians(12.0)
+        skew = math.pi / 2
+        for _ in range(20):
+            mid = 0.5 * (lo + hi)
+            air = airspeed * np.array([math.cos(mid), 0.0, math.sin(mid)])
+            force, _ = aero_wrench(self.params, air, np.zeros(3), skew, np.zeros(3), NO_ROTORS, ONES, 0.0, 0.0)
+            lo, hi = (mid, hi) if -force[2] < weight else (lo, mid)
+        return 0.5 * (lo + hi)
+
+    # ------------------------------------------------------------------ inner loop
+    def _inner_loop(self, nav, R_des, collective, airspeed):
+        R, rates = nav.R, nav.gyro
+        e_R = 0.5 * _vee(R_des.T @ R - R.T @ R_des)
+        rate_cmd = np.clip(-self._katt * e_R, -self._max_rate, self._max_rate)
+        rate_error = rate_cmd - rates
+        # integral: the aerodynamic moments the model does not cover (all of them while hovering) are large
+        # against this airframe's roll inertia (0.6 N m from a 7 m/s side flow = 21 rad/s^2)
+        self._rate_integral = np.clip(self._rate_integral + self._krate_i * rate_error * self.dt,
+                                      -self._rate_integral_limit, self._rate_integral_limit)
+        alpha_des = self._krate * rate_error + self._rate_integral
+        moment = self._inertia * alpha_des + cross(rates, self._inertia * rates)
+        moment -= self._airframe_moment(nav, airspeed)
+        # the pusher motor's reaction about x, from its measured current (003 eq. 1: k_e I_e drives the rotor)
+        moment[0] += self.params.pusher_spin_direction * self.params.pusher_motor_constant * nav.pusher_current
+        B = self._effectiveness(nav, airspeed)
+        demand = np.append(moment, collective)
+        return self._allocate(B, demand, collective)
+
+    def _allocate(self, B, demand, collective):
+        """Regularised weighted least squares over rotors and surfaces (001 Sec. 8.1: WLS allocation), then
+        the surfaces clipped to their throws and the rotors re-solved for what the surfaces could not give."""
+        preferred = np.zeros(7)
+        preferred[:4] = collective / 4.0
+        x = preferred + np.linalg.solve(B.T @ B + self._regularisation, B.T @ (demand - B @ preferred))
+        surfaces = np.clip(x[4:], -self._limits, self._limits)
+        rest = demand - B[:, 4:] @ surfaces
+        return self._rotor_forces(B[:, :4], rest), surfaces
+
+    def _rotor_forces(self, Br, demand) -> np.ndarray:
+        """Rotor forces for [M_x, M_y, M_z, T], yaw given up first: the yaw moment is scaled down until the
+        forces fit [0, f_max] (a yaw demand at the limits would otherwise change the collective)."""
+        without_yaw = demand.copy()
+        without_yaw[2] = 0.0
+        base = np.linalg.lstsq(Br, without_yaw, rcond=None)[0]
+        yaw = np.linalg.lstsq(Br, demand - without_yaw, rcond=None)[0]
+        scale = 1.0
+        for b, y in zip(base, yaw):
+            if y > 1e-12 and b + y > self._f_max:
+                scale = min(scale, max((self._f_max - b) / y, 0.0))
+            elif y < -1e-12 and b + y < 0.0:
+                scale = min(scale, max(-b / y, 0.0))
+        return np.clip(base + scale * yaw, 0.0, self._f_max)
+
+    def _airframe_moment(self, nav, airspeed) -> np.ndarray:
+        if airspeed < 1.0 or self.phase in QUAD_PHASES:
+            return np.zeros(3)
+        air = nav.air_velocity(airspeed)
+        _, moment = aero_wrench(self.params, air, nav.gyro, nav.skew, np.zeros(3), NO_ROTORS, ONES, 0.0, 0.0)
+        return moment
+
+    def _effectiveness(self, nav, airspeed):
+        """B (4 x 7): [M_x, M_y, M_z, thrust along -z] per newton of each hover rotor and per radian of each
+        surface. Rotors: r_i x a_i plus the drag torque; surfaces: the model's moments at the given airspeed."""
+        p = self.params
+        positions, axes = p.hover_rotor_positions(nav.skew), p.hover_thrust_axes(nav.skew)
+        B = np.zeros((4, 7))
+        B[:3, :4] = np.cross(positions, axes).T
+        B[2, :4] += self._yaw_per_newton * np.asarray(p.hover_yaw_signs, float)
+        B[3, :4] = -axes[:, 2]
+        if airspeed >= 1.0 and self.phase not in QUAD_PHASES:   # in quad mode the rotors fly it (001 Sec. 2)
+            air = nav.air_velocity(airspeed)
+            _, m0 = aero_wrench(p, air, np.zeros(3), nav.skew, np.zeros(3), NO_ROTORS, ONES, 0.0, 0.0)
+            for j in range(3):
+                delta = np.zeros(3)
+                delta[j] = 0.05
+                _, m = aero_wrench(p, air, np.zeros(3), nav.skew, delta, NO_ROTORS, ONES, 0.0, 0.0)
+                B[:3, 4 + j] = (m - m0) / 0.05
+        return B
+
+    # ------------------------------------------------------------------ pusher and wing
+    def _pusher(self, airspeed: float) -> float:
+        """Throttle: full in the transition, PI on the given airspeed in cruise, off otherwise; slew-limited
+        so the motor's reaction torque stays within what the hover rotors can hold about x."""
+        g = self.gains
+        if self.phase not in ("transition", "cruise"):
+            self._throttle_integral, wanted = 0.0, 0.0
+        elif self.phase == "transition":
+            wanted = 1.0
+        else:
+            error = self.task.cruise_airspeed - airspeed
+            self._throttle_integral = float(np.clip(self._throttle_integral + g.airspeed_i * error * self.dt, -0.3, 0.3))
+            wanted = float(np.clip(self._cruise_throttle() + g.airspeed_p * error + self._throttle_integral, 0.0, 1.0))
+        step = g.throttle_slew * self.dt
+        self._throttle = float(np.clip(wanted, self._throttle - step, self._throttle + step))
+        return self._throttle
+
+    def _cruise_throttle(self) -> float:
+        if not hasattr(self, "_throttle_ff"):
+            from .quadplane_trim import trim
+            t = trim(self.params, self.task.cruise_airspeed)
+            self._throttle_ff = float(throttle_for_speed(self.params, t["pusher_omega"], self.task.cruise_airspeed))
+        return self._throttle_ff
+
+    def _skew_command(self, airspeed: float) -> float:
+        if self.phase in QUAD_PHASES:
+            return 0.0
+        return skew_schedule(self.params, airspeed) / (0.5 * math.pi)
+
+    def _action(self, rotors, surfaces, throttle, skew) -> np.ndarray:
+        p = self.params
+        omega = np.sqrt(rotors / p.hover_thrust_coefficient)
+        rotor_cmd = (omega - p.hover_omega_min) / (p.hover_omega_max - p.hover_omega_min)
+        action = np.concatenate([rotor_cmd, [throttle], surfaces / self._limits, [skew]])
+        return np.clip(action, [0, 0, 0, 0, 0, -1, -1, -1, 0], 1.0).astype(np.float32)
+
+
+class _Navigation:
+    """What the autopilot reads from one observation."""
+
+    def __init__(self, obs):
+        self.position = np.asarray(obs["position"], float)
+        self.velocity = np.asarray(obs["velocity"], float)
+        self.gyro = np.asarray(obs["gyro"], float)
+        self.R = rotation_matrix(obs["attitude"])
+        self.skew = float(obs["skew"][0])
+        self.pitch = float(-math.asin(np.clip(self.R[2, 0], -1.0, 1.0)))
+        self.pusher_current = float(obs["pusher_current"][0])
+        self.heading = math.atan2(self.R[1, 0], self.R[0, 0])
+        # angle of attack ~ pitch - flight-path angle (no vane: 001 Sec. 3, the VSQP has none)
+        climb = -self.velocity[2]
+        self.alpha = self.pitch - math.atan2(climb, max(float(np.hypot(*self.velocity[:2])), 3.0))
+
+    def air_velocity(self, airspeed: float) -> np.ndarray:
+        """Body air velocity for the given airspeed at alpha, sideslip taken as zero."""
+        return airspeed * np.array([math.cos(self.alpha), 0.0, math.sin(self.alpha)])
+
+
+def _wrap(angle: float) -> float:
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def _vee(S) -> np.ndarray:
+    return np.array([S[2, 1], S[0, 2], S[1, 0]])
+
+
+def _limit_tilt(axis, limit) -> np.ndarray:
+    """The unit thrust axis (NED, pointing up-ish) tilted at most `limit` from vertical."""
+    up = np.array([0.0, 0.0, -1.0])
+    tilt = math.acos(float(np.clip(axis @ up, -1.0, 1.0)))
+    if tilt <= limit:
+        return axis
+    horizontal = axis - (axis @ up) * up
+    horizontal /= max(np.linalg.norm(horizontal), 1e-9)
+    return math.cos(limit) * up + math.sin(limit) * horizontal
+
+
+def _attitude_from_axis(thrust_axis, yaw) -> np.ndarray:
+    """Rotation (body FRD -> NED) whose -z is `thrust_axis` and whose heading is `yaw`."""
+    z = -thrust_axis
+    x_c = np.array([math.cos(yaw), math.sin(yaw), 0.0])
+    y = np.cross(z, x_c)
+    y /= np.linalg.norm(y)
+    x = np.cross(y, z)
+    return np.column_stack([x, y, z])
+
+
+def _euler_matrix(roll, pitch, yaw) -> np.ndarray:
+    cr, sr, cp, sp, cy, sy = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), math.cos(yaw), math.sin(yaw)
+    return np.array([[cp * cy, sr * sp * cy - cr * sy, cr * sp * cy + sr * sy],
+                     [cp * sy, sr * sp * sy + cr * cy, cr * sp * sy - sr * cy],
+                     [-sp, sr * cp, cr * cp]])

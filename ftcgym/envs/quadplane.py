@@ -1,0 +1,287 @@
+"""`ftcgym/QuadPlane-v0`: a VSQP-class quad-plane (001) in PyBullet with sensors, wind and faults.
+
+The vehicle (`vsqp.py`): fuselage, a wing that skews from 0 (hover, along the fuselage) to 90 deg (forward
+flight), four hover rotors (two on the wing, turning with it), a pusher propeller driven by an electric
+motor (003 eq. 1-5, `pusher.py`), aileron, elevator and rudder. Forces and moments: the component model of
+001 eq. (6)-(30) with control surfaces, tail and damping (`quadplane_aero.py`).
+
+Action: Box (9,) float32, clipped to its bounds (a wrong shape or a non-finite value raises ValueError):
+  [0:4] hover-rotor speed commands in [0, 1] (omega = omega_min + u (omega_max - omega_min), rotor order of
+        `VsqpParams.hover_rotor_positions`), [4] pusher throttle in [0, 1] (motor current share, 003 eq. 1),
+  [5:8] aileron, elevator, rudder in [-1, 1] (fractions of `surface_limit`), [8] wing skew command in
+        [0, 1] (0 to 90 deg; the wing follows at `skew_rate_limit`).
+
+Observation: a Dict of float64 sensor readings (`sensors.QuadPlaneSensors`), NED world / FRD body: gyro (3),
+accel (3), attitude (4, x y z w), position (3), velocity (3) (navigation filter), pitot_airspeed (1),
+gnss_velocity (3), skew (1) rad, hover_rotor_speed (4) rad/s, pusher_speed (1) rad/s, pusher_current (1) A,
+reference_position (3), reference_velocity (3), reference_yaw (1).
+
+Reward per agent step: 1 - 0.5 (1 - cos tilt) - 0.01 min(|p - p_ref|, 50), and -100 on a crash (tilt: the
+body z axis from vertical). Terminated on a crash (ground contact faster than 3 m/s or tilted more than 60
+deg, or leaving the box |north|, |east| <= 2 km, altitude <= 1 km); truncated after `max_episode_seconds`.
+The episode starts at rest on the ground at home, motors stopped, nose into the mean wind (north in calm air).
+"""
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from .faults import QUADPLANE_KINDS, FaultSchedule, parse_faults, resolve
+from .frames import quat_from_euler
+from .pusher import PusherMotor
+from .quadplane_aero import aero_wrench
+from .quadrotor import _check_rates
+from .rotors import RotorSet
+from .sensors import ACCEL_LIMIT, GYRO_LIMIT, QuadPlaneSensorConfig, QuadPlaneSensors
+from .tasks import make_task
+from .vehicles import GRAVITY
+from .vsqp import make_vsqp_params
+from .wind import DrydenWind
+from .world import PyBulletWorld
+
+SENSOR_KEYS = ("gyro", "accel", "attitude", "position", "velocity", "pitot_airspeed", "gnss_velocity", "skew",
+               "hover_rotor_speed", "pusher_speed", "pusher_current")
+ACTION_LOW = np.array([0, 0, 0, 0, 0, -1, -1, -1, 0], dtype=np.float32)
+ACTION_HIGH = np.ones(9, dtype=np.float32)
+CRASH_SPEED = 3.0                  # m/s, ground contact faster than this is an impact (a 6.5 kg airframe)
+CRASH_TILT = np.deg2rad(60.0)
+BOUNDS, CEILING = 2000.0, 1000.0   # m
+CRASH_PENALTY = 100.0
+MAX_SPEED = 100.0                  # m/s, observation bound on velocities
+SURFACE_TIME_CONSTANT = 0.03       # s, control-surface servo lag (assumed, hobby-grade digital servo)
+#: a motor that lost its propeller spins 30% faster with little inertia, as for the quadrotor (000 Fig. 8)
+UNLOADED_SPEED_RATIO, UNLOADED_TIME_CONSTANT = 1.3, 0.02
+
+
+class QuadPlaneEnv(gym.Env):
+    """Quad-plane with actuator-level actions; see the module docstring for spaces, reward and termination."""
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 30}
+
+    def __init__(self, vehicle: str = "vsqp", vehicle_overrides: dict | None = None, wind: dict | None = None,
+                 faults=None, task="mission", max_episode_seconds: float = 240.0, physics_hz: float = 500.0,
+                 agent_hz: float = 100.0, sensors: dict | None = None, render_mode: str | None = None):
+        self.params = make_vsqp_params(vehicle, vehicle_overrides)
+        self.physics_hz, self.agent_hz = _check_rates(physics_hz, agent_hz)
+        self.substeps = int(round(self.physics_hz / self.agent_hz))
+        self.dt = 1.0 / self.physics_hz
+        if not (np.isfinite(max_episode_seconds) and max_episode_seconds > 0):
+            raise ValueError(f"max_episode_seconds: must be a finite number > 0, got {max_episode_seconds!r}")
+        self.max_episode_seconds = float(max_episode_seconds)
+        if render_mode not in (None, *self.metadata["render_modes"]):
+            raise ValueError(f"render_mode: {render_mode!r}; accepted: None, {self.metadata['render_modes']}")
+        self.render_mode = render_mode
+        self.task = make_task(task)
+        self.wind = DrydenWind.from_config(wind, self.dt)
+        self.fault_specs = parse_faults(faults, 4, SENSOR_KEYS, QUADPLANE_KINDS)
+        p = self.params
+        self.hover_rotors = RotorSet(p.hover_rotor_positions(0.0), p.hover_yaw_signs, p.hover_thrust_coefficient,
+                                     p.hover_torque_coefficient, p.hover_omega_min, p.hover_omega_max,
+                                     p.hover_time_constant, p.hover_max_acceleration, p.propeller_inertia, 0.0,
+                                     UNLOADED_SPEED_RATIO, UNLOADED_TIME_CONSTANT)
+        self.pusher = PusherMotor(p)
+        self._nominal_pusher = {name: getattr(self.pusher, name) for name in ("theta_1", "c_v", "I_0")}
+        self.sensors = QuadPlaneSensors(QuadPlaneSensorConfig.from_overrides(sensors), p.hover_omega, self.dt,
+                                        1.0 / self.agent_hz)
+        self.world = PyBulletWorld(self.physics_hz, p.mass, p.inertia, p.body_size, gui=render_mode == "human")
+        self._surface_limit = np.broadcast_to(np.asarray(p.surface_limit, dtype=float), (3,)).copy()
+        self._surface_alpha = 1.0 - math.exp(-self.dt / SURFACE_TIME_CONSTANT)
+        self._gravity = np.array([0.0, 0.0, GRAVITY])
+        self._rest_height = 0.5 * float(p.body_size[2])
+        self._ground_check_altitude = 0.75 * float(np.linalg.norm(p.body_size))
+        self.action_space = spaces.Box(ACTION_LOW, ACTION_HIGH, dtype=np.float32)
+        self.observation_space = self._make_observation_space()
+
+    def _make_observation_space(self) -> spaces.Dict:
+        big, fast = 1e4, MAX_SPEED
+
+        def box(low, high, n):
+            return spaces.Box(low, high, (n,), np.float64)
+
+        return spaces.Dict({
+            "gyro": box(-GYRO_LIMIT, GYRO_LIMIT, 3), "accel": box(-ACCEL_LIMIT, ACCEL_LIMIT, 3),
+            "attitude": box(-1.0, 1.0, 4), "position": box(-big, big, 3), "velocity": box(-fast, fast, 3),
+            "pitot_airspeed": box(0.0, fast, 1), "gnss_velocity": box(-fast, fast, 3),
+            "skew": box(-np.pi, np.pi, 1),
+            "hover_rotor_speed": box(0.0, 2.0 * self.params.hover_omega_max, 4),
+            "pusher_speed": box(0.0, 2.0 * self.params.pusher_omega_max, 1),
+            "pusher_current": box(-1e3, 1e3, 1),
+            "reference_position": box(-big, big, 3), "reference_velocity": box(-fast, fast, 3),
+            "reference_yaw": box(-np.pi, np.pi, 1),
+        })
+
+    # ----------------------------------------------------------------------------------------- reset
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        rng = self.np_random
+        self.time, self._physics_steps = 0.0, 0
+        self._faults = FaultSchedule(resolve(self.fault_specs, rng, 4), 4)
+        position = np.array([0.0, 0.0, -self._rest_height])
+        attitude = quat_from_euler(0.0, 0.0, self._start_heading() + float(rng.uniform(-0.02, 0.02)))
+        self.world.reset(position, attitude, np.zeros(3), np.zeros(3))
+        self.hover_rotors.reset(0.0)
+        self.pusher.reset(0.0)
+        self.skew = 0.0
+        self._skew_cmd = 0.0
+        self.surfaces = np.zeros(3)
+        self._surface_cmd = np.zeros(3)
+        self._omega_cmd = np.zeros(4)
+        self._throttle = 0.0
+        self._apply_faults()
+        self._wind = self.wind.reset(rng)
+        self.sensors.reset(rng)
+        self._crashed, self._termination = False, None
+        self._read_state()
+        self._v_before = self._vel
+        self._specific_force = self._R.T @ -self._gravity
+        self._air_body = self._R.T @ (self._vel - self._wind)
+        return self._observe(), self._info()
+
+    def _start_heading(self) -> float:
+        """Nose into the mean wind, as a pilot places a VTOL for take-off (north in calm air): in quad mode
+        the fin weathervanes, and a crosswind on the fin yaws the airframe harder than the rotors can hold."""
+        mean = self.wind.mean
+        if math.hypot(mean[0], mean[1]) < 0.5:
+            return 0.0
+        return math.atan2(-mean[1], -mean[0])
+
+    # ----------------------------------------------------------------------------------------- step
+    def step(self, action):
+        command = _check_action(action)
+        self._set_commands(command)
+        for _ in range(self.substeps):
+            self._physics_step()
+        obs = self._observe()
+        self._check_crash()
+        terminated = self._crashed
+        truncated = not terminated and self.time >= self.max_episode_seconds - 1e-9
+        return obs, self._reward(), terminated, truncated, self._info()
+
+    def _set_commands(self, command: np.ndarray) -> None:
+        self._omega_cmd = self.hover_rotors.command_to_omega(command[:4])
+        self._throttle = float(command[4])
+        self._surface_cmd = command[5:8] * self._surface_limit
+        self._skew_cmd = float(command[8]) * 0.5 * np.pi
+
+    def _physics_step(self) -> None:
+        dt, p = self.dt, self.params
+        self.hover_rotors.step(self._omega_cmd, dt)
+        self._move_wing_and_surfaces(dt)
+        self._wind = self.wind.step()
+        R = self._R
+        air_body = R.T @ (self._vel - self._wind)
+        self.pusher.step(self._throttle, max(float(air_body[0]), 0.0), dt)
+        force, moment = aero_wrench(p, air_body, self._rates, self.skew, self.surfaces, self.hover_rotors.omega,
+                                    self.hover_rotors.effectiveness, self.pusher.thrust, self.pusher.torque)
+        v_before = self._vel
+        self.world.step(R @ force, R @ moment, self._pos)
+        self.sensors.advance_rotor_phase(self.hover_rotors.omega, dt)
+        self._physics_steps += 1
+        self.time = self._physics_steps / self.physics_hz
+        self._apply_faults()
+        self._read_state()
+        self._specific_force = R.T @ ((self._vel - v_before) / dt - self._gravity)   # as QuadrotorEnv
+        self._v_before = v_before
+        self._air_body = air_body
+
+    def _move_wing_and_surfaces(self, dt: float) -> None:
+        """The wing turns toward its command at the skew rate limit; surfaces follow their servos' lag."""
+        step = self.params.skew_rate_limit * dt
+        self.skew += min(max(self._skew_cmd - self.skew, -step), step)
+        self.surfaces += self._surface_alpha * (self._surface_cmd - self.surfaces)
+
+    def _read_state(self) -> None:
+        self._pos, self._quat, self._R, self._vel, ang = self.world.state()
+        self._rates = self._R.T @ ang
+
+    def _apply_faults(self) -> None:
+        """Hover-rotor and pusher faults in force from `self.time` on."""
+        self._faults.rotor_state(self.time, self.hover_rotors.effectiveness, self.hover_rotors.loaded)
+        for name, factor in self._faults.propulsion_factors(self.time).items():
+            setattr(self.pusher, name, self._nominal_pusher[name] * factor)
+
+    # ----------------------------------------------------------------------------------------- outputs
+    def _observe(self) -> dict:
+        readings = self.sensors.read(self._pos, self._vel, self._quat, self._rates, self._specific_force,
+                                     self.hover_rotors.omega, float(self._air_body[0]), self.skew,
+                                     self.pusher.omega, self.pusher.current)
+        readings["pitot_airspeed"][0] = self._faults.apply_to_pitot(self.time, float(readings["pitot_airspeed"][0]))
+        self._faults.apply_to_sensors(self.time, readings)
+        ref = self.task.reference(self.time)
+        self._reference = ref
+        readings["reference_position"] = ref.position
+        readings["reference_velocity"] = ref.velocity
+        readings["reference_yaw"] = np.array([ref.yaw])
+        return readings
+
+    def _check_crash(self) -> None:
+        altitude = -self._pos[2]
+        if abs(self._pos[0]) > BOUNDS or abs(self._pos[1]) > BOUNDS or altitude > CEILING:
+            self._crashed, self._termination = True, "out_of_bounds"
+        elif altitude < self._ground_check_altitude and self.world.touching_ground():
+            impact = math.sqrt(max(self._v_before @ self._v_before, self._vel @ self._vel))
+            if impact > CRASH_SPEED or self._tilt() > CRASH_TILT:
+                self._crashed, self._termination = True, "ground_impact"
+
+    def _tilt(self) -> float:
+        return float(np.arccos(np.clip(self._R[2, 2], -1.0, 1.0)))
+
+    def _reward(self) -> float:
+        if self._crashed:
+            return -CRASH_PENALTY
+        e = self._pos - self._reference.position
+        return float(1.0 - 0.5 * (1.0 - self._R[2, 2]) - 0.01 * min(math.sqrt(e @ e), 50.0))
+
+    def airspeed(self) -> float:
+        """True airspeed |v - wind| (m/s)."""
+        air = self._vel - self._wind
+        return float(math.sqrt(air @ air))
+
+    def angle_of_attack(self) -> float:
+        """alpha = atan2(w, u) of the body air velocity (rad)."""
+        u, _, w = self._air_body
+        return float(math.atan2(w, u)) if abs(u) + abs(w) > 1e-9 else 0.0
+
+    def _info(self) -> dict:
+        rotors, ref, pusher = self.hover_rotors, self._reference, self.pusher
+        return {
+            "time": self.time,
+            "fault": self._faults.current(self.time),
+            "faults": self._faults.as_dicts(),
+            "truth": {
+                "position": self._pos.copy(), "velocity": self._vel.copy(), "attitude": self._quat.copy(),
+                "body_rates": self._rates.copy(), "wind": self._wind.copy(), "airspeed": self.airspeed(),
+                "air_velocity_body": self._air_body.copy(), "angle_of_attack": self.angle_of_attack(),
+                "mass": self.params.mass, "rotor_effectiveness": rotors.effectiveness.copy(),
+                "rotor_speed": rotors.omega.copy(), "skew": self.skew, "surfaces": self.surfaces.copy(),
+                "pusher": {"omega": pusher.omega, "current": pusher.current, "thrust": pusher.thrust,
+                           "theta_1": pusher.theta_1, "c_v": pusher.c_v, "I_0": pusher.I_0},
+            },
+            "reference": {"position": ref.position.copy(), "velocity": ref.velocity.copy(), "yaw": ref.yaw},
+            "crashed": self._crashed,
+            "termination": self._termination,
+        }
+
+    # ----------------------------------------------------------------------------------------- misc
+    def render(self):
+        if self.render_mode == "rgb_array":
+            return self.world.camera_image(self._pos)
+        return None
+
+    def close(self):
+        if getattr(self, "world", None) is not None:
+            self.world.close()
+            self.world = None
+
+
+def _check_action(action) -> np.ndarray:
+    a = np.asarray(action, dtype=np.float64)
+    if a.shape != (9,):
+        raise ValueError("action: expected shape (9,): 4 hover-rotor commands, pusher throttle, aileron, elevator, "
+                         f"rudder, skew command; got shape {a.shape}")
+    if not np.isfinite(a).all():
+        raise ValueError(f"action: must be finite (no NaN or inf), got {a.tolist()}")
+    return np.minimum(np.maximum(a, ACTION_LOW), ACTION_HIGH)
