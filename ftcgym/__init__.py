@@ -3,5 +3,11 @@ from gymnasium.envs.registration import register, registry
 
 __version__ = "0.1.0"
 
-if "ftcgym/Quadrotor-v0" not in registry:
-    register(id="ftcgym/Quadrotor-v0", entry_point="ftcgym.envs.quadrotor:QuadrotorEnv")
+_ENVS = {
+    "ftcgym/Quadrotor-v0": "ftcgym.envs.quadrotor:QuadrotorEnv",
+    "ftcgym/QuadPlane-v0": "ftcgym.envs.quadplane:QuadPlaneEnv",
+    "ftcgym/QuadPlaneAutopilot-v0": "ftcgym.envs.quadplane_autopilot_env:QuadPlaneAutopilotEnv",
+}
+for _id, _entry in _ENVS.items():
+    if _id not in registry:
+        register(id=_id, entry_point=_entry)

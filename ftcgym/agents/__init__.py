@@ -1,6 +1,7 @@
 """Controllers and policies with the interface of DESIGN.md: `reset(obs, info)`, `act(obs, info)`."""
 from __future__ import annotations
 
+from .airspeed_policies import AutopilotPolicy, OracleAirspeedPolicy, PitotOnlyPolicy
 from .base import Policy
 from .quadrotor_control import ControllerGains, NominalController, allocation_matrix
 from .relaxed_hover import relaxed_hover_equilibrium
@@ -12,13 +13,20 @@ POLICY_DESCRIPTIONS = {
     "ftc-spin": "nominal until the loe_kalman alarm, then relaxed-hover spin recovery (scheduled LQR of the "
                 "primary axis) without the isolated rotor; needs the loe_kalman detector",
     "oracle-spin": "upper bound: spin recovery from the true fault onset (benchmark oracle info), not flyable",
+    "autopilot": "quad-plane mission autopilot on QuadPlane-v0's actuators, scheduled on the pitot reading",
+    "pitot-only": "QuadPlaneAutopilot-v0: feeds the autopilot the pitot reading, faulty or not",
+    "oracle-airspeed": "QuadPlaneAutopilot-v0 upper bound: feeds the true airspeed (benchmark oracle info)",
 }
+QUADPLANE_POLICIES = ("autopilot", "pitot-only", "oracle-airspeed")
 POLICY_NAMES = tuple(POLICY_DESCRIPTIONS)
 
 
 def make_policy(name: str, env) -> Policy:
     """The named benchmark policy for `env` (a gymnasium env, wrapped or not)."""
     base = env.unwrapped
+    quadplane = hasattr(base.params, "hover_thrust_coefficient")
+    if name in QUADPLANE_POLICIES or quadplane:
+        return _quadplane_policy(name, base)
     if name == "nominal":
         return NominalController(base.params, base.agent_hz)
     if name == "ftc-spin":
@@ -28,6 +36,17 @@ def make_policy(name: str, env) -> Policy:
     raise ValueError(f"policy: unknown name {name!r}; accepted: {list(POLICY_NAMES)}")
 
 
-__all__ = ["ControllerGains", "NominalController", "OracleSpinPolicy", "POLICY_DESCRIPTIONS", "POLICY_NAMES", "Policy",
+def _quadplane_policy(name: str, base) -> Policy:
+    autopilot_env = hasattr(base, "autopilot")          # QuadPlaneAutopilot-v0: the action is an airspeed
+    wanted = {"autopilot": False, "pitot-only": True, "oracle-airspeed": True}.get(name)
+    if wanted is None or wanted != autopilot_env:
+        accepted = ["pitot-only", "oracle-airspeed"] if autopilot_env else ["autopilot"]
+        raise ValueError(f"policy: {name!r} does not fly {type(base).__name__}; accepted: {accepted}")
+    if name == "autopilot":
+        return AutopilotPolicy(base.params, base.agent_hz, base.task)
+    return PitotOnlyPolicy() if name == "pitot-only" else OracleAirspeedPolicy()
+
+
+__all__ = ["AutopilotPolicy", "OracleAirspeedPolicy", "PitotOnlyPolicy", "ControllerGains", "NominalController", "OracleSpinPolicy", "POLICY_DESCRIPTIONS", "POLICY_NAMES", "Policy",
            "SpinAfterAlarmPolicy", "SpinRecoveryController", "SpinRecoveryGains", "allocation_matrix", "make_policy",
            "relaxed_hover_equilibrium"]

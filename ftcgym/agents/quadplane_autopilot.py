@@ -63,10 +63,10 @@ class AutopilotGains:
     cross_track_limit_deg: float = 30.0
     course: float = 0.35                     # 1/s, course-rate demand per rad of course error
     # inner loop
-    attitude: tuple = (2.5, 2.5, 1.2)        # 1/s
-    rate: tuple = (6.0, 6.0, 3.0)            # 1/s (the hover motors lag 0.08 s)
+    attitude: tuple = (4.0, 4.0, 1.5)        # 1/s
+    rate: tuple = (14.0, 10.0, 4.0)          # 1/s (the hover motors lag 0.08 s)
     max_rate: tuple = (2.0, 2.0, 1.0)        # rad/s
-    rate_integral: tuple = (0.0, 0.0, 0.0)            # 1/s^2 (off: with the 0.08 s motor lag it oscillated)
+    rate_integral: tuple = (10.0, 8.0, 2.0)           # 1/s^2
     rate_integral_limit: tuple = (40.0, 10.0, 10.0)   # rad/s^2
     surface_weight: float = 1.0              # WLS cost of a radian of surface relative to a newton of rotor
     rotor_weight: float = 1.0

@@ -15,6 +15,10 @@ EPISODE_FIELDS = (
     "detection_delay", "isolated_target", "isolation_correct", "false_alarm", "recovery_time",
     "recovered", "crashed", "altitude_loss", "position_rmse", "airspeed_error_rmse", "flight_time",
 )
+#: quad-plane mission fields (issue 5), appended to each episode row; null for the quadrotor
+QUADPLANE_FIELDS = ("mission_complete", "time_quad_mode", "time_transition", "time_forward_flight",
+                    "cruise_airspeed_rmse", "max_attitude_deg")
+EPISODE_FIELDS = EPISODE_FIELDS + QUADPLANE_FIELDS
 SUMMARY_FIELDS = (
     "scenario", "policy", "episodes", "detection_delay_median", "detection_delay_p95",
     "missed_detection_rate", "false_alarms_per_hour", "isolation_accuracy",
@@ -64,6 +68,44 @@ def recovery_time(time, recovered, onset: float, hold: float = RECOVERY_HOLD) ->
     ends = time[np.minimum(stops, len(time) - 1)]
     long_enough = np.flatnonzero(ends - time[starts] >= hold - 1e-9)
     return float(time[starts[long_enough[0]]]) if long_enough.size else None
+
+
+# Airspeed-fault recovery (DESIGN.md): the airspeed the autopilot uses within 2 m/s of the true airspeed,
+# attitude inside the flight envelope.
+AIRSPEED_TOLERANCE = 2.0              # m/s
+ENVELOPE_ROLL = np.radians(45.0)
+ENVELOPE_PITCH = np.radians(30.0)
+# Flight phases by wing skew, as 001 Table 5 splits them: quad mode below 30 deg, transition 30-80 deg,
+# forward flight above 80 deg.
+TRANSITION_SKEW = (np.radians(30.0), np.radians(80.0))
+
+
+def roll_pitch(attitude: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Roll and pitch (rad, (N,)) of FRD->NED quaternions (N, 4) x, y, z, w (ZYX Euler angles)."""
+    yaw_pitch_roll = Rotation.from_quat(attitude).as_euler("ZYX")
+    return yaw_pitch_roll[:, 2], yaw_pitch_roll[:, 1]
+
+
+def airspeed_recovered(airspeed_used, airspeed, attitude) -> np.ndarray:
+    """Per-sample airspeed-fault recovery condition (DESIGN.md)."""
+    roll, pitch = roll_pitch(attitude)
+    close = np.abs(np.asarray(airspeed_used) - np.asarray(airspeed)) <= AIRSPEED_TOLERANCE
+    return close & (np.abs(roll) <= ENVELOPE_ROLL) & (np.abs(pitch) <= ENVELOPE_PITCH)
+
+
+def flight_phase_times(time, skew, airborne) -> dict:
+    """Seconds spent airborne in quad mode, transition and forward flight (skew thresholds above)."""
+    time, skew, airborne = np.asarray(time, float), np.asarray(skew, float), np.asarray(airborne, bool)
+    dt = np.diff(time, append=time[-1]) * airborne
+    low, high = TRANSITION_SKEW
+    return {"time_quad_mode": float(dt[skew < low].sum()),
+            "time_transition": float(dt[(skew >= low) & (skew <= high)].sum()),
+            "time_forward_flight": float(dt[skew > high].sum())}
+
+
+def rms(values) -> float | None:
+    values = np.asarray(values, float)
+    return float(np.sqrt(np.mean(values ** 2))) if values.size else None
 
 
 def altitude_loss(time, altitude, onset: float) -> float | None:

@@ -34,8 +34,10 @@ def episode_seed(seed: int, index: int) -> int:
 
 def policy_view(info: dict, policy) -> dict:
     """A copy of `info` without ground truth; an oracle (`uses_true_onset`) also gets the true onset and,
-    once it has happened, the faulty target."""
+    once it has happened, the faulty target; an airspeed oracle (`uses_true_airspeed`) the true airspeed."""
     view = {key: value for key, value in info.items() if key not in PRIVATE_INFO_KEYS}
+    if getattr(policy, "uses_true_airspeed", False):
+        view["oracle_airspeed"] = info["truth"]["airspeed"]
     if getattr(policy, "uses_true_onset", False):
         onset = info["fault"]["onset_time"]
         view["oracle_onset_time"] = onset
@@ -65,6 +67,11 @@ class EpisodeLog:
     alarm_time: float | None           # first alarm of `detector`
     isolated: object                   # first target `detector` isolated at or after its alarm
     crashed: bool
+    airspeed: np.ndarray | None = None       # (N,) m/s, truth (quad-plane)
+    skew: np.ndarray | None = None           # (N,) rad, truth (quad-plane)
+    airspeed_used: np.ndarray | None = None  # (N,) m/s, what the autopilot scheduled on (QuadPlaneAutopilot-v0)
+    phase: np.ndarray | None = None          # (N,) mission phase names (QuadPlaneAutopilot-v0)
+    cruise_airspeed: float | None = None
 
 
 class _Recorder:
@@ -76,6 +83,8 @@ class _Recorder:
             "time", "position", "reference_position", "attitude", "body_rates", "rotor_speed",
             "thrust_axis_reference")}
         self.detector_outputs: dict[str, list] = {}
+        self.quadplane: dict[str, list] = {}
+        self.cruise_airspeed = None
         self.fault = None
         self.alarm_time = None
         self.isolated = None
@@ -89,6 +98,14 @@ class _Recorder:
                             ("rotor_speed", truth["rotor_speed"]),
                             ("thrust_axis_reference", axis_reference)):
             self.rows[name].append(np.array(value, dtype=float))
+        if "skew" in truth:
+            self.quadplane.setdefault("airspeed", []).append(truth["airspeed"])
+            self.quadplane.setdefault("skew", []).append(truth["skew"])
+        mission = info.get("mission")
+        if mission is not None:
+            self.quadplane.setdefault("airspeed_used", []).append(mission["airspeed_used"])
+            self.quadplane.setdefault("phase", []).append(mission["phase"])
+            self.cruise_airspeed = mission["cruise_airspeed"]
         if self.fault is None and info["fault"]["onset_time"] is not None:
             self.fault = dict(info["fault"])
         if self.detector is not None:
@@ -116,7 +133,9 @@ class _Recorder:
         return EpisodeLog(**{name: np.array(values) for name, values in self.rows.items()},
                           detector_outputs={k: np.array(v) for k, v in self.detector_outputs.items()},
                           fault=self.fault, detector=self.detector, alarm_time=self.alarm_time,
-                          isolated=self.isolated, crashed=bool(final_info["crashed"]))
+                          isolated=self.isolated, crashed=bool(final_info["crashed"]),
+                          cruise_airspeed=self.cruise_airspeed,
+                          **{name: np.array(values) for name, values in self.quadplane.items()})
 
 
 def roll_out(env: gym.Env, policy, seed: int, detector: str | None = None) -> EpisodeLog:
@@ -151,15 +170,37 @@ def score_episode(log: EpisodeLog) -> dict:
         "position_rmse": metrics.position_rmse(log.position, log.reference_position),
         "airspeed_error_rmse": None,  # the quadrotor has no airspeed source to get wrong
         "flight_time": float(log.time[-1]),
+        **dict.fromkeys(metrics.QUADPLANE_FIELDS),
     }
-    if onset is not None:
-        # The rotor-loss criterion (DESIGN.md) serves every quadrotor fault; airspeed faults of the
-        # quad-plane will need their own.
+    if log.skew is not None:
+        scores.update(_quadplane_scores(log, onset))
+    elif onset is not None:
+        # The rotor-loss criterion (DESIGN.md) serves every quadrotor fault.
         axis_error = metrics.thrust_axis_error(log.attitude, log.thrust_axis_reference)
         recovered = metrics.hover_recovered(altitude, -log.reference_position[:, 2], axis_error)
         scores["recovery_time"] = metrics.recovery_time(log.time, recovered, onset)
         scores["recovered"] = scores["recovery_time"] is not None and not log.crashed
         scores["altitude_loss"] = metrics.altitude_loss(log.time, altitude, onset)
+    return scores
+
+
+def _quadplane_scores(log: EpisodeLog, onset) -> dict:
+    """Mission fields; with the autopilot's airspeed, its error and the airspeed-fault recovery (DESIGN.md)."""
+    altitude = -log.position[:, 2]
+    roll, pitch = metrics.roll_pitch(log.attitude)
+    scores = {**metrics.flight_phase_times(log.time, log.skew, altitude > 0.5),
+              "max_attitude_deg": float(np.degrees(np.max(np.maximum(np.abs(roll), np.abs(pitch)))))}
+    if log.airspeed_used is None:
+        return scores
+    airborne = altitude > 0.5
+    cruise = log.phase == "cruise"
+    scores["airspeed_error_rmse"] = metrics.rms((log.airspeed_used - log.airspeed)[airborne])
+    scores["cruise_airspeed_rmse"] = metrics.rms(log.airspeed[cruise] - log.cruise_airspeed)
+    scores["mission_complete"] = bool(log.phase[-1] == "landed" and not log.crashed)
+    if onset is not None:
+        recovered = metrics.airspeed_recovered(log.airspeed_used, log.airspeed, log.attitude)
+        scores["recovery_time"] = metrics.recovery_time(log.time, recovered, onset)
+        scores["recovered"] = scores["recovery_time"] is not None and not log.crashed
     return scores
 
 

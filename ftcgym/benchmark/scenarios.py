@@ -9,6 +9,7 @@ from dataclasses import dataclass, field, replace
 from typing import Callable
 
 QUADROTOR = "ftcgym/Quadrotor-v0"
+QUADPLANE_AUTOPILOT = "ftcgym/QuadPlaneAutopilot-v0"
 LIGHT_TURBULENCE = {"mean": [0.0, 0.0, 0.0], "turbulence": "light"}
 # Rotor-loss scenarios fly the fault-unaware controller, spin recovery on the detector's alarm, and the oracle
 # that switches at the true onset (an upper bound: the gap to ftc-spin is the price of detection).
@@ -148,4 +149,27 @@ register(Scenario(
     episodes=4,
     detector="iv_change",
     description="As quad-payload, turning the heading by 90 deg at each corner (004's second scenario).",
+))
+
+# Quad-plane (issue 5): the autopilot flies the mission (take-off, transition, one 150 m circle at 18 m/s,
+# back transition, landing) on the airspeed the policy feeds it.
+_QP_MISSION = {"wind": {"mean": [-3.0, 4.0, 0.0], "turbulence": "light"}, "max_episode_seconds": 240.0}
+AIRSPEED_POLICIES = ("pitot-only", "oracle-airspeed")
+register(Scenario(
+    name="qp-mission",
+    env_id=QUADPLANE_AUTOPILOT,
+    env_kwargs=_QP_MISSION,
+    policies=AIRSPEED_POLICIES,
+    episodes=2,
+    description="Quad-plane mission, fault-free, 5 m/s mean wind and light turbulence.",
+    default=True,
+))
+register(Scenario(
+    name="qp-pitot-abrupt",
+    env_id=QUADPLANE_AUTOPILOT,
+    env_kwargs={**_QP_MISSION, "faults": [{"kind": "pitot_blockage", "target": "zero", "time": 45.0}]},
+    policies=AIRSPEED_POLICIES,
+    episodes=2,
+    description="Quad-plane mission; the pitot reads zero from 45 s, in forward flight (001 Sec. 7.2.1).",
+    default=True,
 ))
