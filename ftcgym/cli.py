@@ -33,6 +33,7 @@ def build_parser() -> argparse.ArgumentParser:
     # ---- further subcommands, one `_add_<name>(subparsers)` each (replay and train to come) ----
     _add_replay(subparsers)
     _add_perf(subparsers)
+    _add_trim(subparsers)
     return parser
 
 
@@ -217,6 +218,30 @@ def _add_perf(subparsers) -> None:
     parser = subparsers.add_parser("perf", help="measure simulation speed and memory")
     perf.add_arguments(parser)
     parser.set_defaults(run=lambda args, argv: perf.main(args))
+
+
+# ---- trim ----
+
+def _add_trim(subparsers) -> None:
+    parser = subparsers.add_parser("trim", help="quad-plane trims over airspeed (markdown table)",
+                                   description="Steady level-flight trims of a quad-plane parameter set over "
+                                               "airspeed: mode, skew, angle of attack, elevator, pusher, hover "
+                                               "rotors, wing lift.")
+    parser.add_argument("--vehicle", default="vsqp", help="quad-plane parameter set (default vsqp)")
+    parser.add_argument("--vehicle-overrides", type=_json_object, default=None, metavar="JSON",
+                        help="JSON object of parameter overrides")
+    parser.add_argument("--airspeeds", type=float, nargs="+", default=None, metavar="V",
+                        help="airspeeds in m/s (default: hover to 24 m/s)")
+    parser.set_defaults(run=_run_trim)
+
+
+def _run_trim(args, argv: list[str]) -> int:
+    from ftcgym.agents.quadplane_trim import default_airspeeds, format_trim_table, trim_table
+    from ftcgym.envs.vsqp import make_vsqp_params
+
+    params = make_vsqp_params(args.vehicle, args.vehicle_overrides)
+    print(format_trim_table(trim_table(params, args.airspeeds or default_airspeeds(params))))
+    return 0
 
 
 if __name__ == "__main__":

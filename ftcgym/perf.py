@@ -1,8 +1,9 @@
 """`ftcgym perf`: env throughput and memory, the figures to quote.
 
-Measures, single process, resets included: env steps per second and simulated seconds per wall second
-for Quadrotor-v0 with random actions (at 240/240 Hz and the 500/500 Hz defaults) and with the nominal
-controller in the loop; mean reset time; peak resident memory and its growth over the run (a leak check);
+Measures, single process, resets included: env steps per second (agent and physics) and simulated seconds
+per wall second for Quadrotor-v0 with random actions (at 240/240 Hz and the 500/500 Hz defaults) and with
+the nominal controller in the loop, and for QuadPlane-v0 with random actions (500 Hz physics, agent at 100
+and 500 Hz) and with the mission autopilot; mean reset time; peak resident memory and its growth over the run (a leak check);
 and the cost of one update of each fault detector (000 reports 18 us per step on a Cortex-A9 in C++).
 Sensors, Dryden wind and a fault schedule are on in every case.
 """
@@ -18,13 +19,18 @@ import numpy as np
 import ftcgym  # noqa: F401  (registers the ids; imported before measuring so memory growth is the run's)
 from ftcgym.agents import make_policy
 
-#: every case flies with light turbulence, mean wind and a rotor loss (sensors are always on)
-WORKLOAD = {"wind": {"mean": [1.0, -1.0, 0.0], "turbulence": "light"}, "faults": "random:rotor_loss",
-            "max_episode_seconds": 10.0}
+QUADROTOR, QUADPLANE = "ftcgym/Quadrotor-v0", "ftcgym/QuadPlane-v0"
+#: every case flies with light turbulence and mean wind (sensors are always on); the quadrotor loses a rotor
+WORKLOAD = {QUADROTOR: {"wind": {"mean": [1.0, -1.0, 0.0], "turbulence": "light"}, "faults": "random:rotor_loss",
+                        "max_episode_seconds": 10.0},
+            QUADPLANE: {"wind": {"mean": [-3.0, 4.0, 0.0], "turbulence": "light"}, "max_episode_seconds": 150.0}}
 CASES = (
-    ("random actions, 240/240 Hz", {"physics_hz": 240, "agent_hz": 240}, "random"),
-    ("random actions, 500/500 Hz", {}, "random"),
-    ("nominal controller, 500/500 Hz", {}, "nominal"),
+    ("Quadrotor random, 240/240 Hz", QUADROTOR, {"physics_hz": 240, "agent_hz": 240}, "random"),
+    ("Quadrotor random, 500/500 Hz", QUADROTOR, {}, "random"),
+    ("Quadrotor nominal, 500/500 Hz", QUADROTOR, {}, "nominal"),
+    ("QuadPlane random, 500/100 Hz", QUADPLANE, {}, "random"),
+    ("QuadPlane random, 500/500 Hz", QUADPLANE, {"agent_hz": 500}, "random"),
+    ("QuadPlane autopilot, 500/100 Hz", QUADPLANE, {}, "autopilot"),
 )
 
 
@@ -34,13 +40,14 @@ def add_arguments(parser) -> None:
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
 
 
-def measure(env_kwargs: dict, actor: str, steps: int, seed: int) -> dict:
-    """Steps/s, simulated s per wall s and reset cost of one case."""
-    env = gym.make("ftcgym/Quadrotor-v0", **{**WORKLOAD, **env_kwargs})
+def measure(env_id: str, env_kwargs: dict, actor: str, steps: int, seed: int) -> dict:
+    """Steps/s (agent and physics), simulated s per wall s and reset cost of one case."""
+    env = gym.make(env_id, **{**WORKLOAD[env_id], **env_kwargs})
     # Random actions come from one numpy draw up front: Box.sample() alone costs ~50 us a call, which
     # would measure gymnasium's sampler rather than the env.
-    random_actions = np.random.default_rng(seed).uniform(0.0, 1.0, (steps, 4)).astype(np.float32)
-    policy = make_policy("nominal", env) if actor == "nominal" else None
+    space = env.action_space
+    random_actions = np.random.default_rng(seed).uniform(space.low, space.high, (steps, *space.shape)).astype(np.float32)
+    policy = make_policy(actor, env) if actor != "random" else None
     obs, info = env.reset(seed=seed)
     resets, reset_time, episode = 0, 0.0, 0
     start = time.perf_counter()
@@ -56,9 +63,10 @@ def measure(env_kwargs: dict, actor: str, steps: int, seed: int) -> dict:
             reset_time += time.perf_counter() - t0
             resets += 1
     wall = time.perf_counter() - start
-    agent_hz = env.unwrapped.agent_hz
+    agent_hz, substeps = env.unwrapped.agent_hz, env.unwrapped.substeps
     env.close()
-    return {"steps_per_s": steps / wall, "sim_s_per_wall_s": steps / agent_hz / wall, "resets": resets,
+    return {"steps_per_s": steps / wall, "physics_steps_per_s": steps * substeps / wall,
+            "sim_s_per_wall_s": steps / agent_hz / wall, "resets": resets,
             "reset_ms": 1e3 * reset_time / max(resets, 1), "wall_s": wall}
 
 
@@ -66,7 +74,7 @@ def detector_costs(steps: int, seed: int) -> dict:
     """Microseconds per `update` of each registered detector, over one recorded fault-free hover flight."""
     from ftcgym.fdd import DETECTORS, wrap_with_detector
 
-    env = gym.make("ftcgym/Quadrotor-v0", **{**WORKLOAD, "faults": None, "max_episode_seconds": 1e6})
+    env = gym.make(QUADROTOR, **{**WORKLOAD[QUADROTOR], "faults": None, "max_episode_seconds": 1e6})
     policy = make_policy("nominal", env)
     obs, info = env.reset(seed=seed)
     policy.reset(obs, info)
@@ -92,26 +100,28 @@ def _rss_mib() -> float:
 
 
 def main(args) -> int:
-    measure({}, "nominal", 200, args.seed)  # warm-up: one-time allocations must not read as growth
+    measure(QUADROTOR, {}, "nominal", 200, args.seed)  # warm-up: one-time allocations must not read as growth
+    measure(QUADPLANE, {}, "autopilot", 200, args.seed)
     rows = []
-    for name, kwargs, actor in CASES:
+    for name, env_id, kwargs, actor in CASES:
         before = _rss_mib()
-        row = measure(kwargs, actor, args.steps, args.seed)
+        row = measure(env_id, kwargs, actor, args.steps, args.seed)
         row.update(case=name, peak_rss_mib=_rss_mib(), rss_growth_mib=_rss_mib() - before)
         rows.append(row)
     costs = detector_costs(min(args.steps, 5000), args.seed)
     if args.json:
         print(json.dumps({"env": rows, "detector_us_per_update": costs}, indent=2))
         return 0
-    print(f"ftcgym perf: Quadrotor-v0, {args.steps} steps per case, one process, resets included")
-    print(f"workload: {WORKLOAD}")
-    header = (f"{'case':34} {'steps/s':>9} {'sim s/s':>8} {'resets':>7} {'reset ms':>9} {'peak MiB':>9} "
-              f"{'growth MiB':>10}")
+    print(f"ftcgym perf: {args.steps} agent steps per case, one process, resets included")
+    for env_id, workload in WORKLOAD.items():
+        print(f"workload {env_id}: {workload}")
+    header = (f"{'case':34} {'steps/s':>9} {'physics/s':>10} {'sim s/s':>8} {'resets':>7} {'reset ms':>9} "
+              f"{'peak MiB':>9} {'growth MiB':>10}")
     print(header)
     print("-" * len(header))
     for r in rows:
-        print(f"{r['case']:34} {r['steps_per_s']:9.0f} {r['sim_s_per_wall_s']:8.1f} {r['resets']:7d} "
-              f"{r['reset_ms']:9.3f} {r['peak_rss_mib']:9.1f} {r['rss_growth_mib']:10.1f}")
+        print(f"{r['case']:34} {r['steps_per_s']:9.0f} {r['physics_steps_per_s']:10.0f} {r['sim_s_per_wall_s']:8.1f} "
+              f"{r['resets']:7d} {r['reset_ms']:9.3f} {r['peak_rss_mib']:9.1f} {r['rss_growth_mib']:10.1f}")
     print("\ndetector cost per update (us), over a recorded 500 Hz hover flight:")
     for name, us in costs.items():
         print(f"  {name:12} {us:8.1f}")

@@ -18,6 +18,9 @@ DESIGN_EPISODE_FIELDS = [
     "detection_delay", "isolated_target", "isolation_correct", "false_alarm", "recovery_time",
     "recovered", "crashed", "altitude_loss", "position_rmse", "airspeed_error_rmse", "flight_time",
 ]
+# ftcgym's additions after them: the quad-plane mission fields (null for the quadrotor).
+QUADPLANE_FIELDS = ["mission_complete", "time_quad_mode", "time_transition", "time_forward_flight",
+                    "cruise_airspeed_rmse", "max_attitude_deg"]
 DESIGN_SUMMARY_FIELDS = [
     "scenario", "policy", "episodes", "detection_delay_median", "detection_delay_p95",
     "missed_detection_rate", "false_alarms_per_hour", "isolation_accuracy",
@@ -183,6 +186,7 @@ def test_fake_episode_scores():
         "detection_delay": 0.3, "isolated_target": 1, "isolation_correct": True, "false_alarm": False,
         "recovery_time": 3.0, "recovered": True, "crashed": False, "altitude_loss": 0.9,
         "position_rmse": np.sqrt(2.85 / 61), "airspeed_error_rmse": None, "flight_time": 6.0,
+        **dict.fromkeys(QUADPLANE_FIELDS),
     })
 
 
@@ -219,7 +223,7 @@ def test_bench_cli_end_to_end(tmp_path, capsys):
                  "--env-kwargs", '{"max_episode_seconds": 2}', "--out", str(tmp_path)]) == 0
     results = json.loads((tmp_path / "results.json").read_text())
     assert set(results) == {"summary", "episodes", "config"}
-    assert [list(row) for row in results["episodes"]] == [DESIGN_EPISODE_FIELDS]
+    assert [list(row) for row in results["episodes"]] == [DESIGN_EPISODE_FIELDS + QUADPLANE_FIELDS]
     assert [list(row) for row in results["summary"]] == [DESIGN_SUMMARY_FIELDS]
     [row] = results["episodes"]
     assert row["flight_time"] == pytest.approx(2.0) and row["crashed"] is False

@@ -1,0 +1,167 @@
+"""QuadPlane-v0 and QuadPlaneAutopilot-v0 (issue 5): the Gymnasium contract, determinism, bad input, the
+faults' effect on what the vehicle senses, and the autopilot flying the mission."""
+import math
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+import ftcgym  # noqa: F401
+from ftcgym.agents import make_policy
+from ftcgym.benchmark.runner import roll_out, score_episode
+
+IDS = ("ftcgym/QuadPlane-v0", "ftcgym/QuadPlaneAutopilot-v0")
+
+
+def hover_action(env) -> np.ndarray:
+    """Hover-rotor commands that carry the weight, everything else neutral."""
+    p = env.unwrapped.params
+    command = (p.hover_omega - p.hover_omega_min) / (p.hover_omega_max - p.hover_omega_min)
+    return np.array([command] * 4 + [0.0, 0.0, 0.0, 0.0, 0.0], dtype=np.float32)
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_check_env_gymnasium_and_sb3(env_id):
+    check_env(gym.make(env_id, max_episode_seconds=2.0).unwrapped, skip_render_check=True)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        sb3_check_env(gym.make(env_id, max_episode_seconds=2.0).unwrapped)
+    # DESIGN.md fixes the action spaces (commands in [0, 1] and [-1, 1]; an airspeed in m/s)
+    assert [str(w.message) for w in caught if "symmetric and normalized Box" not in str(w.message)] == []
+
+
+def test_same_seed_same_trajectory_other_seed_differs():
+    def fly(seed):
+        env = gym.make("ftcgym/QuadPlane-v0", wind={"mean": [2.0, 1.0, 0.0], "turbulence": "light"})
+        policy = make_policy("autopilot", env)
+        obs, info = env.reset(seed=seed)
+        policy.reset(obs, info)
+        for _ in range(600):    # take-off, 6 s
+            obs, *_, info = env.step(policy.act(obs, info))
+        return np.concatenate([info["truth"]["position"], info["truth"]["attitude"], obs["gyro"]])
+
+    assert np.array_equal(fly(3), fly(3))
+    assert not np.allclose(fly(3), fly(4))
+
+
+def test_bad_input_names_the_field():
+    env = gym.make("ftcgym/QuadPlane-v0")
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="action: expected shape \\(9,\\)"):
+        env.step(np.zeros(4))
+    with pytest.raises(ValueError, match="action: must be finite"):
+        env.step(np.full(9, np.nan))
+    with pytest.raises(ValueError, match="vehicle_overrides.*wing_span_typo"):
+        gym.make("ftcgym/QuadPlane-v0", vehicle_overrides={"wing_span_typo": 2.0})
+    with pytest.raises(ValueError, match="not a fault kind of this vehicle"):
+        gym.make("ftcgym/QuadPlane-v0", faults=[{"kind": "payload"}])
+    autopilot = gym.make("ftcgym/QuadPlaneAutopilot-v0")
+    autopilot.reset(seed=0)
+    with pytest.raises(ValueError, match="airspeed must be finite"):
+        autopilot.step(np.array([np.inf]))
+
+
+def test_rests_on_the_ground_nose_into_the_wind_and_hovers_on_the_trim_speed():
+    env = gym.make("ftcgym/QuadPlane-v0", wind={"mean": [0.0, -4.0, 0.0], "turbulence": "none"})
+    obs, info = env.reset(seed=0)
+    x, y, z, w = info["truth"]["attitude"]
+    heading = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    assert heading == pytest.approx(math.pi / 2, abs=0.03)       # the wind blows west: nose east, into it
+    for _ in range(50):
+        obs, _, terminated, _, info = env.step(np.zeros(9, np.float32))
+    assert not terminated and abs(info["truth"]["position"][2] + 0.125) < 0.01   # resting, motors off
+    # the four rotors at the trim speed carry 6.5 kg: after spin-up the vertical acceleration is ~0
+    for _ in range(100):
+        obs, _, _, _, info = env.step(hover_action(env))
+    assert abs(obs["accel"][2] + 9.81) < 0.6 and abs(info["truth"]["velocity"][2]) < 0.5
+
+
+def test_pitot_blockage_zero_and_incipient_and_gnss_fault_reach_the_observation():
+    faults = [{"kind": "pitot_blockage", "time": 1.0}, {"kind": "gnss", "time": 1.0}]
+    env = gym.make("ftcgym/QuadPlane-v0", faults=faults, wind={"mean": [0.0, 0.0, 0.0], "turbulence": "none"})
+    env.reset(seed=0)
+    env.unwrapped.world.reset(np.array([0.0, 0.0, -30.0]), np.array([0, 0, 0, 1.0]), np.array([15.0, 0, 0]), np.zeros(3))
+    env.unwrapped._read_state()
+    readings = []
+    for _ in range(150):
+        obs, *_ = env.step(hover_action(env))
+        readings.append((obs["pitot_airspeed"][0], obs["gnss_velocity"][0]))
+    before, after = np.array(readings[60:95]), np.array(readings[105:])
+    assert before[:, 0].mean() > 10 and before[:, 1].mean() > 10      # flying at ~15 m/s
+    assert np.all(after == 0.0)
+    incipient = gym.make("ftcgym/QuadPlane-v0", faults=[{"kind": "pitot_blockage", "time": 0.0, "rate": 2.5}])
+    incipient.reset(seed=0)
+    schedule = incipient.unwrapped._faults
+    assert schedule.apply_to_pitot(2.0, 18.0) == pytest.approx(13.0)   # 001 Sec. 7.2.2: -2.5 m/s^2
+
+
+def test_propeller_icing_raises_the_pusher_current_at_the_same_speed():
+    """003's signature: with theta_1 up 10% the motor draws more current to hold the same speed."""
+    def current(faults):
+        env = gym.make("ftcgym/QuadPlane-v0", faults=faults, wind={"mean": [0.0, 0.0, 0.0], "turbulence": "none"})
+        env.reset(seed=0)
+        action = np.zeros(9, np.float32)
+        action[4] = 0.6
+        for _ in range(300):        # 3 s at a fixed throttle on the ground: the speed settles
+            obs, *_, info = env.step(action)
+        return info["truth"]["pusher"]
+
+    nominal = current(None)
+    iced = current([{"kind": "propeller_icing", "time": 0.0, "magnitude": 1.1, "duration": 1e-3}])
+    assert iced["theta_1"] == pytest.approx(1.1)
+    assert iced["omega"] < nominal["omega"]                    # more torque at the same voltage: slower
+    assert iced["current"] > nominal["current"]
+
+
+@pytest.fixture(scope="module")
+def calm_mission():
+    env = gym.make("ftcgym/QuadPlaneAutopilot-v0", wind={"mean": [0.0, 0.0, 0.0], "turbulence": "light"})
+    log = roll_out(env, make_policy("oracle-airspeed", env), seed=11)
+    return score_episode(log), log
+
+
+def test_oracle_mission_completes_both_transitions_and_tracks_the_cruise_airspeed(calm_mission):
+    scores, log = calm_mission
+    assert scores["mission_complete"] and not scores["crashed"]
+    assert log.skew.max() > math.radians(85) and log.skew[-1] < math.radians(5)    # out and back
+    assert scores["time_forward_flight"] > 40.0 and scores["time_transition"] > 2.0
+    assert scores["cruise_airspeed_rmse"] < 1.0                 # issue 5: < 1 m/s
+    assert scores["airspeed_error_rmse"] < 0.1                  # the oracle feeds the truth
+
+
+def test_a_zero_pitot_in_cruise_degrades_pitot_only_against_the_oracle():
+    kwargs = {"wind": {"mean": [0.0, 0.0, 0.0], "turbulence": "light"}, "max_episode_seconds": 70.0,
+              "faults": [{"kind": "pitot_blockage", "time": 40.0}]}
+    scores = {}
+    for policy in ("pitot-only", "oracle-airspeed"):
+        env = gym.make("ftcgym/QuadPlaneAutopilot-v0", **kwargs)
+        scores[policy] = score_episode(roll_out(env, make_policy(policy, env), seed=5))
+    pitot, oracle = scores["pitot-only"], scores["oracle-airspeed"]
+    assert oracle["recovered"] and oracle["airspeed_error_rmse"] < 0.2
+    assert not pitot["recovered"] and pitot["airspeed_error_rmse"] > 5.0
+    # believing it has stopped, the autopilot retracts the wing and ends its forward flight early
+    assert pitot["time_forward_flight"] < oracle["time_forward_flight"] - 10.0
+
+
+def test_policies_refuse_the_wrong_env():
+    with pytest.raises(ValueError, match="accepted: \\['autopilot'\\]"):
+        make_policy("pitot-only", gym.make("ftcgym/QuadPlane-v0"))
+    with pytest.raises(ValueError, match="pitot-only"):
+        make_policy("nominal", gym.make("ftcgym/QuadPlaneAutopilot-v0"))
+
+
+def test_trim_cli_prints_hover_and_forward_trims(capsys):
+    """Issue 5: hover with every rotor below 85% of its top speed; forward flight from the stall speed to
+    22 m/s with the angle of attack in [0, 10] deg."""
+    from ftcgym.cli import main
+
+    assert main(["trim", "--airspeeds", "0", "13.6", "18", "22"]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()[2:]
+    cells = [[c.strip() for c in line.strip("|").split("|")] for line in lines]
+    hover, *forward = cells
+    assert hover[1] == "hover" and float(hover[9]) < 85.0
+    assert [row[1] for row in forward] == ["wing-borne"] * 3
+    assert all(0.0 <= float(row[3]) <= 10.0 for row in forward)
