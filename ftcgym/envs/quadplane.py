@@ -25,30 +25,22 @@ from __future__ import annotations
 
 import math
 
-import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
 from .faults import QUADPLANE_KINDS, FaultSchedule, parse_faults, resolve
+from .flight_env import FlightEnv
 from .frames import quat_from_euler
 from .pusher import PusherMotor
 from .quadplane_aero import aero_wrench
-from .quadrotor import _check_rates
 from .rotors import RotorSet
 from .sensors import ACCEL_LIMIT, GYRO_LIMIT, QuadPlaneSensorConfig, QuadPlaneSensors
-from .tasks import make_task
-from .vehicles import GRAVITY
 from .vsqp import make_vsqp_params
-from .wind import DrydenWind
-from .world import PyBulletWorld
 
 SENSOR_KEYS = ("gyro", "accel", "attitude", "position", "velocity", "pitot_airspeed", "gnss_velocity", "skew",
                "hover_rotor_speed", "pusher_speed", "pusher_current")
 ACTION_LOW = np.array([0, 0, 0, 0, 0, -1, -1, -1, 0], dtype=np.float32)
 ACTION_HIGH = np.ones(9, dtype=np.float32)
-CRASH_SPEED = 3.0                  # m/s, ground contact faster than this is an impact (a 6.5 kg airframe)
-CRASH_TILT = np.deg2rad(60.0)
-BOUNDS, CEILING = 2000.0, 1000.0   # m
 CRASH_PENALTY = 100.0
 MAX_SPEED = 100.0                  # m/s, observation bound on velocities
 SURFACE_TIME_CONSTANT = 0.03       # s, control-surface servo lag (assumed, hobby-grade digital servo)
@@ -56,26 +48,17 @@ SURFACE_TIME_CONSTANT = 0.03       # s, control-surface servo lag (assumed, hobb
 UNLOADED_SPEED_RATIO, UNLOADED_TIME_CONSTANT = 1.3, 0.02
 
 
-class QuadPlaneEnv(gym.Env):
+class QuadPlaneEnv(FlightEnv):
     """Quad-plane with actuator-level actions; see the module docstring for spaces, reward and termination."""
 
-    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 30}
+    BOUNDS, CEILING = 2000.0, 1000.0   # m
+    CRASH_SPEED = 3.0                  # m/s, ground contact faster than this is an impact (a 6.5 kg airframe)
 
     def __init__(self, vehicle: str = "vsqp", vehicle_overrides: dict | None = None, wind: dict | None = None,
                  faults=None, task="mission", max_episode_seconds: float = 240.0, physics_hz: float = 500.0,
                  agent_hz: float = 100.0, sensors: dict | None = None, render_mode: str | None = None):
-        self.params = make_vsqp_params(vehicle, vehicle_overrides)
-        self.physics_hz, self.agent_hz = _check_rates(physics_hz, agent_hz)
-        self.substeps = int(round(self.physics_hz / self.agent_hz))
-        self.dt = 1.0 / self.physics_hz
-        if not (np.isfinite(max_episode_seconds) and max_episode_seconds > 0):
-            raise ValueError(f"max_episode_seconds: must be a finite number > 0, got {max_episode_seconds!r}")
-        self.max_episode_seconds = float(max_episode_seconds)
-        if render_mode not in (None, *self.metadata["render_modes"]):
-            raise ValueError(f"render_mode: {render_mode!r}; accepted: None, {self.metadata['render_modes']}")
-        self.render_mode = render_mode
-        self.task = make_task(task)
-        self.wind = DrydenWind.from_config(wind, self.dt)
+        self._setup(make_vsqp_params(vehicle, vehicle_overrides), wind, task, max_episode_seconds, physics_hz,
+                    agent_hz, render_mode)
         self.fault_specs = parse_faults(faults, 4, SENSOR_KEYS, QUADPLANE_KINDS)
         p = self.params
         self.hover_rotors = RotorSet(p.hover_rotor_positions(0.0), p.hover_yaw_signs, p.hover_thrust_coefficient,
@@ -86,12 +69,9 @@ class QuadPlaneEnv(gym.Env):
         self._nominal_pusher = {name: getattr(self.pusher, name) for name in ("theta_1", "c_v", "I_0")}
         self.sensors = QuadPlaneSensors(QuadPlaneSensorConfig.from_overrides(sensors), p.hover_omega, self.dt,
                                         1.0 / self.agent_hz)
-        self.world = PyBulletWorld(self.physics_hz, p.mass, p.inertia, p.body_size, gui=render_mode == "human")
         self._surface_limit = np.broadcast_to(np.asarray(p.surface_limit, dtype=float), (3,)).copy()
         self._surface_alpha = 1.0 - math.exp(-self.dt / SURFACE_TIME_CONSTANT)
-        self._gravity = np.array([0.0, 0.0, GRAVITY])
         self._rest_height = 0.5 * float(p.body_size[2])
-        self._ground_check_altitude = 0.75 * float(np.linalg.norm(p.body_size))
         self.action_space = spaces.Box(ACTION_LOW, ACTION_HIGH, dtype=np.float32)
         self.observation_space = self._make_observation_space()
 
@@ -117,11 +97,10 @@ class QuadPlaneEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         rng = self.np_random
-        self.time, self._physics_steps = 0.0, 0
         self._faults = FaultSchedule(resolve(self.fault_specs, rng, 4), 4)
         position = np.array([0.0, 0.0, -self._rest_height])
         attitude = quat_from_euler(0.0, 0.0, self._start_heading() + float(rng.uniform(-0.02, 0.02)))
-        self.world.reset(position, attitude, np.zeros(3), np.zeros(3))
+        self._start(position, attitude)
         self.hover_rotors.reset(0.0)
         self.pusher.reset(0.0)
         self.skew = 0.0
@@ -133,10 +112,7 @@ class QuadPlaneEnv(gym.Env):
         self._apply_faults()
         self._wind = self.wind.reset(rng)
         self.sensors.reset(rng)
-        self._crashed, self._termination = False, None
-        self._read_state()
-        self._v_before = self._vel
-        self._specific_force = self._R.T @ -self._gravity
+        self._at_rest_readings()
         self._air_body = self._R.T @ (self._vel - self._wind)
         return self._observe(), self._info()
 
@@ -176,15 +152,8 @@ class QuadPlaneEnv(gym.Env):
         self.pusher.step(self._throttle, max(float(air_body[0]), 0.0), dt)
         force, moment = aero_wrench(p, air_body, self._rates, self.skew, self.surfaces, self.hover_rotors.omega,
                                     self.hover_rotors.effectiveness, self.pusher.thrust, self.pusher.torque)
-        v_before = self._vel
-        self.world.step(R @ force, R @ moment, self._pos)
         self.sensors.advance_rotor_phase(self.hover_rotors.omega, dt)
-        self._physics_steps += 1
-        self.time = self._physics_steps / self.physics_hz
-        self._apply_faults()
-        self._read_state()
-        self._specific_force = R.T @ ((self._vel - v_before) / dt - self._gravity)   # as QuadrotorEnv
-        self._v_before = v_before
+        self._integrate(R, force, moment)
         self._air_body = air_body
 
     def _move_wing_and_surfaces(self, dt: float) -> None:
@@ -192,10 +161,6 @@ class QuadPlaneEnv(gym.Env):
         step = self.params.skew_rate_limit * dt
         self.skew += min(max(self._skew_cmd - self.skew, -step), step)
         self.surfaces += self._surface_alpha * (self._surface_cmd - self.surfaces)
-
-    def _read_state(self) -> None:
-        self._pos, self._quat, self._R, self._vel, ang = self.world.state()
-        self._rates = self._R.T @ ang
 
     def _apply_faults(self) -> None:
         """Hover-rotor and pusher faults in force from `self.time` on."""
@@ -216,18 +181,6 @@ class QuadPlaneEnv(gym.Env):
         readings["reference_velocity"] = ref.velocity
         readings["reference_yaw"] = np.array([ref.yaw])
         return readings
-
-    def _check_crash(self) -> None:
-        altitude = -self._pos[2]
-        if abs(self._pos[0]) > BOUNDS or abs(self._pos[1]) > BOUNDS or altitude > CEILING:
-            self._crashed, self._termination = True, "out_of_bounds"
-        elif altitude < self._ground_check_altitude and self.world.touching_ground():
-            impact = math.sqrt(max(self._v_before @ self._v_before, self._vel @ self._vel))
-            if impact > CRASH_SPEED or self._tilt() > CRASH_TILT:
-                self._crashed, self._termination = True, "ground_impact"
-
-    def _tilt(self) -> float:
-        return float(np.arccos(np.clip(self._R[2, 2], -1.0, 1.0)))
 
     def _reward(self) -> float:
         if self._crashed:
@@ -264,17 +217,6 @@ class QuadPlaneEnv(gym.Env):
             "crashed": self._crashed,
             "termination": self._termination,
         }
-
-    # ----------------------------------------------------------------------------------------- misc
-    def render(self):
-        if self.render_mode == "rgb_array":
-            return self.world.camera_image(self._pos)
-        return None
-
-    def close(self):
-        if getattr(self, "world", None) is not None:
-            self.world.close()
-            self.world = None
 
 
 def _check_action(action) -> np.ndarray:

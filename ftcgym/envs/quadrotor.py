@@ -21,59 +21,39 @@ from __future__ import annotations
 
 import math
 
-import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
 from .faults import FaultSchedule, parse_faults, resolve
+from .flight_env import FlightEnv
 from .frames import quat_from_euler
 from .rotors import RotorSet
 from .sensors import ACCEL_LIMIT, GYRO_LIMIT, QuadrotorSensors, SensorConfig
-from .tasks import make_task
-from .vehicles import GRAVITY, YAW_SIGNS, make_params
-from .wind import DrydenWind
-from .world import PyBulletWorld
+from .vehicles import YAW_SIGNS, make_params
 
 SENSOR_KEYS = ("gyro", "accel", "attitude", "position", "velocity", "rotor_speed")
-CRASH_SPEED = 2.0                 # m/s, ground contact faster than this is an impact
-CRASH_TILT = np.deg2rad(60.0)     # rad, ground contact more tilted than this is a crash
 BOUNDS = 100.0                    # m, half-width and ceiling of the flight box
 CRASH_PENALTY = 100.0
 MAX_SPEED = 100.0                 # m/s, observation bound on velocities (far above any multirotor's)
 
 
-class QuadrotorEnv(gym.Env):
+class QuadrotorEnv(FlightEnv):
     """Quadrotor with motor-level actions; see the module docstring for spaces, reward and termination."""
 
-    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 30}
+    BOUNDS = CEILING = BOUNDS
 
     def __init__(self, vehicle: str = "bebop2", vehicle_overrides: dict | None = None, wind: dict | None = None,
                  faults=None, task="hover", max_episode_seconds: float = 30.0, physics_hz: float = 500.0,
                  agent_hz: float = 500.0, sensors: dict | None = None, render_mode: str | None = None):
-        self.params = make_params(vehicle, vehicle_overrides)
-        self.physics_hz, self.agent_hz = _check_rates(physics_hz, agent_hz)
-        self.substeps = int(round(self.physics_hz / self.agent_hz))
-        self.dt = 1.0 / self.physics_hz
-        if not (np.isfinite(max_episode_seconds) and max_episode_seconds > 0):
-            raise ValueError(f"max_episode_seconds: must be a finite number > 0, got {max_episode_seconds!r}")
-        self.max_episode_seconds = float(max_episode_seconds)
-        if render_mode not in (None, *self.metadata["render_modes"]):
-            raise ValueError(f"render_mode: {render_mode!r}; accepted: None, {self.metadata['render_modes']}")
-        self.render_mode = render_mode
-        self.task = make_task(task)
-        self.wind = DrydenWind.from_config(wind, self.dt)
+        self._setup(make_params(vehicle, vehicle_overrides), wind, task, max_episode_seconds, physics_hz, agent_hz,
+                    render_mode)
         self.fault_specs = parse_faults(faults, 4, SENSOR_KEYS)
         self.rotors = RotorSet.from_params(self.params, YAW_SIGNS)
         self.sensors = QuadrotorSensors(SensorConfig.from_overrides(sensors), 4, self.params.hover_omega,
                                         1.0 / self.agent_hz)
-        self.world = PyBulletWorld(self.physics_hz, self.params.mass, self.params.inertia, self.params.body_size,
-                                   gui=render_mode == "human")
         self._body_drag = np.asarray(self.params.body_drag, dtype=float)
         self._rot_drag = (np.asarray(self.params.rotational_drag, dtype=float),   # params.rotational_drag_moment,
                           np.asarray(self.params.rotational_drag_quadratic, dtype=float))   # cached for the loop
-        self._gravity = np.array([0.0, 0.0, GRAVITY])
-        # Below this altitude the body may touch the ground: 1.5 x half its diagonal (contacts are queried only here).
-        self._ground_check_altitude = 0.75 * float(np.linalg.norm(self.params.body_size))
         self.action_space = spaces.Box(0.0, 1.0, (4,), np.float32)
         self.observation_space = self._make_observation_space()
 
@@ -100,7 +80,6 @@ class QuadrotorEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         rng = self.np_random
-        self.time, self._physics_steps = 0.0, 0
         self._faults = FaultSchedule(resolve(self.fault_specs, rng, 4), 4)
         self._has_payload = any(s.kind == "payload" for s in self._faults.specs)
         self._mass = self.params.mass
@@ -108,16 +87,13 @@ class QuadrotorEnv(gym.Env):
         position = ref.position + rng.uniform(-0.05, 0.05, 3)
         roll, pitch, dyaw = rng.uniform(-np.deg2rad(2), np.deg2rad(2), 3)
         attitude = quat_from_euler(roll, pitch, ref.yaw + dyaw)
-        self.world.reset(position, attitude, np.zeros(3), np.zeros(3))
+        self._start(position, attitude)
         self.rotors.reset(self.params.hover_omega)
         self._apply_faults()
         self._omega_cmd = np.full(4, self.params.hover_omega)
         self._wind = self.wind.reset(rng)
         self.sensors.reset(rng)
-        self._crashed, self._termination = False, None
-        self._read_state()
-        self._v_before = self._vel
-        self._specific_force = self._R.T @ -self._gravity
+        self._at_rest_readings()
         obs = self._observe()
         return obs, self._info()
 
@@ -146,22 +122,8 @@ class QuadrotorEnv(gym.Env):
         force -= self._body_drag * air_body
         linear, quadratic = self._rot_drag
         moment -= (linear + quadratic * np.abs(self._rates)) * self._rates
-        v_before = self._vel
-        self.world.step(R @ force, R @ moment, self._pos)
         self.sensors.advance_rotor_phase(rotors.omega, dt)
-        self._physics_steps += 1
-        self.time = self._physics_steps / self.physics_hz  # counted, so it never drifts
-        self._apply_faults()
-        self._read_state()
-        # An IMU measures the specific force over the interval: (dv/dt - g) in the body frame. PyBullet's
-        # semi-implicit step applies the force set with the attitude R at the step's start, so R (not the
-        # attitude after the step) maps it back exactly; contact forces are included.
-        self._specific_force = R.T @ ((self._vel - v_before) / dt - self._gravity)
-        self._v_before = v_before
-
-    def _read_state(self) -> None:
-        self._pos, self._quat, self._R, self._vel, ang = self.world.state()
-        self._rates = self._R.T @ ang
+        self._integrate(R, force, moment)
 
     def _apply_faults(self) -> None:
         """Set the rotor and mass faults in force from `self.time` on (so info at t shows what acts next)."""
@@ -186,19 +148,6 @@ class QuadrotorEnv(gym.Env):
         readings["reference_velocity"] = ref.velocity
         readings["reference_yaw"] = np.array([ref.yaw])
         return readings
-
-    def _check_crash(self) -> None:
-        altitude = -self._pos[2]
-        if abs(self._pos[0]) > BOUNDS or abs(self._pos[1]) > BOUNDS or altitude > BOUNDS:
-            self._crashed, self._termination = True, "out_of_bounds"
-        elif altitude < self._ground_check_altitude and self.world.touching_ground():
-            impact = math.sqrt(max(self._v_before @ self._v_before, self._vel @ self._vel))
-            if impact > CRASH_SPEED or self._tilt() > CRASH_TILT:
-                self._crashed, self._termination = True, "ground_impact"
-
-    def _tilt(self) -> float:
-        """Angle between the thrust axis (body -z) and up."""
-        return float(np.arccos(np.clip(self._R[2, 2], -1.0, 1.0)))
 
     def _reward(self, command: np.ndarray) -> float:
         if self._crashed:
@@ -231,17 +180,6 @@ class QuadrotorEnv(gym.Env):
             "termination": self._termination,
         }
 
-    # ----------------------------------------------------------------------------------------- misc
-    def render(self):
-        if self.render_mode == "rgb_array":
-            return self.world.camera_image(self._pos)
-        return None
-
-    def close(self):
-        if getattr(self, "world", None) is not None:
-            self.world.close()
-            self.world = None
-
 
 def _check_action(action) -> np.ndarray:
     a = np.asarray(action, dtype=np.float64)
@@ -250,13 +188,3 @@ def _check_action(action) -> np.ndarray:
     if not np.isfinite(a).all():
         raise ValueError(f"action: must be finite (no NaN or inf), got {a.tolist()}")
     return np.minimum(np.maximum(a, 0.0), 1.0)
-
-
-def _check_rates(physics_hz, agent_hz):
-    for name, value in (("physics_hz", physics_hz), ("agent_hz", agent_hz)):
-        if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
-            raise ValueError(f"{name}: must be a finite number > 0, got {value!r}")
-    ratio = physics_hz / agent_hz
-    if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
-        raise ValueError(f"agent_hz: physics_hz / agent_hz must be a whole number >= 1, got {physics_hz}/{agent_hz}")
-    return float(physics_hz), float(agent_hz)

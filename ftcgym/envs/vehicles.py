@@ -129,19 +129,31 @@ VEHICLES = {p.name: p for p in (BEBOP2, MUELLER2014)}
 
 def make_params(vehicle: str, overrides: dict | None = None) -> QuadrotorParams:
     """The named parameter set with `overrides` applied; unknown names raise ValueError."""
-    if vehicle not in VEHICLES:
-        raise ValueError(f"vehicle: unknown parameter set {vehicle!r}; accepted: {sorted(VEHICLES)}")
-    params = VEHICLES[vehicle]
+    return named_params(VEHICLES, vehicle, overrides)
+
+
+def named_params(catalogue: dict, vehicle: str, overrides: dict | None = None):
+    """`catalogue[vehicle]` (a frozen dataclass) with `overrides` applied; a bad name, field, value or shape
+    raises ValueError naming it and what is accepted."""
+    if vehicle not in catalogue:
+        raise ValueError(f"vehicle: unknown parameter set {vehicle!r}; accepted: {sorted(catalogue)}")
+    params = catalogue[vehicle]
     if not overrides:
         return params
-    fields = {f.name for f in dataclasses.fields(QuadrotorParams)} - {"name", "sources"}
+    fields = {f.name for f in dataclasses.fields(params)} - {"name", "sources"}
     unknown = set(overrides) - fields
     if unknown:
         raise ValueError(f"vehicle_overrides: unknown field(s) {sorted(unknown)}; accepted: {sorted(fields)}")
     clean = {}
     for key, value in overrides.items():
-        arr = np.asarray(value, dtype=float)
+        try:
+            arr = np.asarray(value, dtype=float)
+        except (TypeError, ValueError):
+            raise ValueError(f"vehicle_overrides[{key!r}]: must be a number or a list of numbers, got {value!r}")
         if not np.all(np.isfinite(arr)):
             raise ValueError(f"vehicle_overrides[{key!r}]: must be finite, got {value!r}")
+        expected = np.shape(getattr(params, key))
+        if arr.shape != expected:
+            raise ValueError(f"vehicle_overrides[{key!r}]: expected shape {expected}, got {arr.shape}")
         clean[key] = tuple(arr.tolist()) if arr.ndim else float(arr)
     return dataclasses.replace(params, **clean)

@@ -65,13 +65,12 @@ source; "derived" = computed from given numbers; "assumed" = chosen, with the re
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from .vehicles import GRAVITY
+from .vehicles import GRAVITY, named_params
 
 RPM = math.pi / 30.0   # rad/s per RPM
 INCH = 0.0254          # m
@@ -274,25 +273,4 @@ QUADPLANE_VEHICLES = {VSQP.name: VSQP}
 
 def make_vsqp_params(vehicle: str = "vsqp", overrides: dict | None = None) -> VsqpParams:
     """The named quad-plane parameter set with `overrides` applied (as `vehicles.make_params`)."""
-    if vehicle not in QUADPLANE_VEHICLES:
-        raise ValueError(f"vehicle: unknown parameter set {vehicle!r}; accepted: {sorted(QUADPLANE_VEHICLES)}")
-    params = QUADPLANE_VEHICLES[vehicle]
-    if not overrides:
-        return params
-    fields = {f.name for f in dataclasses.fields(VsqpParams)} - {"name", "sources"}
-    unknown = set(overrides) - fields
-    if unknown:
-        raise ValueError(f"vehicle_overrides: unknown field(s) {sorted(unknown)}; accepted: {sorted(fields)}")
-    clean = {}
-    for key, value in overrides.items():
-        try:
-            arr = np.asarray(value, dtype=float)
-        except (TypeError, ValueError):
-            raise ValueError(f"vehicle_overrides[{key!r}]: must be a number or a list of numbers, got {value!r}")
-        if not np.all(np.isfinite(arr)):
-            raise ValueError(f"vehicle_overrides[{key!r}]: must be finite, got {value!r}")
-        expected = np.shape(getattr(params, key))
-        if arr.shape != expected:
-            raise ValueError(f"vehicle_overrides[{key!r}]: expected shape {expected}, got {arr.shape}")
-        clean[key] = tuple(arr.tolist()) if arr.ndim else float(arr)
-    return dataclasses.replace(params, **clean)
+    return named_params(QUADPLANE_VEHICLES, vehicle, overrides)

@@ -1,0 +1,111 @@
+"""What the quadrotor and the quad-plane envs share: rates and arguments, the PyBullet world, the physics
+step's integration and IMU specific force, crash detection, rendering."""
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import numpy as np
+
+from .tasks import make_task
+from .vehicles import GRAVITY
+from .wind import DrydenWind
+from .world import PyBulletWorld
+
+
+class FlightEnv(gym.Env):
+    """Base class. Subclasses set the class constants, call `_setup` first in `__init__`, and implement
+    `_apply_faults()` (the faults in force from `self.time` on)."""
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 30}
+    BOUNDS = 100.0        # m, half-width of the flight box
+    CEILING = 100.0       # m
+    CRASH_SPEED = 2.0     # m/s, ground contact faster than this is an impact
+    CRASH_TILT = np.deg2rad(60.0)   # rad, ground contact more tilted than this is a crash
+
+    def _setup(self, params, wind, task, max_episode_seconds, physics_hz, agent_hz, render_mode) -> None:
+        """Validate the shared keyword arguments and build the world, task and wind."""
+        self.params = params
+        self.physics_hz, self.agent_hz = _check_rates(physics_hz, agent_hz)
+        self.substeps = int(round(self.physics_hz / self.agent_hz))
+        self.dt = 1.0 / self.physics_hz
+        if not (np.isfinite(max_episode_seconds) and max_episode_seconds > 0):
+            raise ValueError(f"max_episode_seconds: must be a finite number > 0, got {max_episode_seconds!r}")
+        self.max_episode_seconds = float(max_episode_seconds)
+        if render_mode not in (None, *self.metadata["render_modes"]):
+            raise ValueError(f"render_mode: {render_mode!r}; accepted: None, {self.metadata['render_modes']}")
+        self.render_mode = render_mode
+        self.task = make_task(task)
+        self.wind = DrydenWind.from_config(wind, self.dt)
+        self.world = PyBulletWorld(self.physics_hz, params.mass, params.inertia, params.body_size,
+                                   gui=render_mode == "human")
+        self._gravity = np.array([0.0, 0.0, GRAVITY])
+        # Below this altitude the body may touch the ground: 1.5 x half its diagonal (contacts are queried only here).
+        self._ground_check_altitude = 0.75 * float(np.linalg.norm(params.body_size))
+
+    def _start(self, position, attitude) -> None:
+        """Place the body at rest and reset the clock (reset's first step)."""
+        self.time, self._physics_steps = 0.0, 0
+        self.world.reset(position, attitude, np.zeros(3), np.zeros(3))
+        self._crashed, self._termination = False, None
+
+    def _integrate(self, R: np.ndarray, force: np.ndarray, moment: np.ndarray) -> None:
+        """One physics step with the body-frame force and moment; then the faults of the new time and the state."""
+        v_before = self._vel
+        self.world.step(R @ force, R @ moment, self._pos)
+        self._physics_steps += 1
+        self.time = self._physics_steps / self.physics_hz  # counted, so it never drifts
+        self._apply_faults()
+        self._read_state()
+        # An IMU measures the specific force over the interval: (dv/dt - g) in the body frame. PyBullet's
+        # semi-implicit step applies the force set with the attitude R at the step's start, so R (not the
+        # attitude after the step) maps it back exactly; contact forces are included.
+        self._specific_force = R.T @ ((self._vel - v_before) / self.dt - self._gravity)
+        self._v_before = v_before
+
+    def _read_state(self) -> None:
+        self._pos, self._quat, self._R, self._vel, ang = self.world.state()
+        self._rates = self._R.T @ ang
+
+    def _at_rest_readings(self) -> None:
+        """Velocity history and specific force of a body at rest (reset's last step)."""
+        self._read_state()
+        self._v_before = self._vel
+        self._specific_force = self._R.T @ -self._gravity
+
+    def _apply_faults(self) -> None:
+        raise NotImplementedError
+
+    def _check_crash(self) -> None:
+        """Crashed: out of the flight box, or touching the ground too fast or too tilted."""
+        altitude = -self._pos[2]
+        if abs(self._pos[0]) > self.BOUNDS or abs(self._pos[1]) > self.BOUNDS or altitude > self.CEILING:
+            self._crashed, self._termination = True, "out_of_bounds"
+        elif altitude < self._ground_check_altitude and self.world.touching_ground():
+            impact = math.sqrt(max(self._v_before @ self._v_before, self._vel @ self._vel))
+            if impact > self.CRASH_SPEED or self._tilt() > self.CRASH_TILT:
+                self._crashed, self._termination = True, "ground_impact"
+
+    def _tilt(self) -> float:
+        """Angle between the body -z axis and up."""
+        return float(np.arccos(np.clip(self._R[2, 2], -1.0, 1.0)))
+
+    def render(self):
+        if self.render_mode == "rgb_array":
+            return self.world.camera_image(self._pos)
+        return None
+
+    def close(self):
+        if getattr(self, "world", None) is not None:
+            self.world.close()
+            self.world = None
+
+
+def _check_rates(physics_hz, agent_hz):
+    for name, value in (("physics_hz", physics_hz), ("agent_hz", agent_hz)):
+        if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
+            raise ValueError(f"{name}: must be a finite number > 0, got {value!r}")
+    ratio = physics_hz / agent_hz
+    if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+        raise ValueError(f"agent_hz: physics_hz / agent_hz must be a whole number >= 1, got {physics_hz}/{agent_hz}")
+    return float(physics_hz), float(agent_hz)
