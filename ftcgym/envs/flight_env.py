@@ -90,6 +90,12 @@ class FlightEnv(gym.Env):
         """Angle between the body -z axis and up."""
         return float(np.arccos(np.clip(self._R[2, 2], -1.0, 1.0)))
 
+    def _outcome(self) -> dict:
+        """The `info` entries every env reports after `truth`: the task's reference and the crash state."""
+        ref = self._reference
+        return {"reference": {"position": ref.position.copy(), "velocity": ref.velocity.copy(), "yaw": ref.yaw},
+                "crashed": self._crashed, "termination": self._termination}
+
     def render(self):
         if self.render_mode == "rgb_array":
             return self.world.camera_image(self._pos)
@@ -99,6 +105,16 @@ class FlightEnv(gym.Env):
         if getattr(self, "world", None) is not None:
             self.world.close()
             self.world = None
+
+
+def check_action(action, low, high, what: str) -> np.ndarray:
+    """`action` as float64 clipped to [low, high]; a wrong shape or a non-finite value raises ValueError."""
+    a = np.asarray(action, dtype=np.float64)
+    if a.shape != np.shape(low):
+        raise ValueError(f"action: expected shape {np.shape(low)}: {what}; got shape {a.shape}")
+    if not np.isfinite(a).all():
+        raise ValueError(f"action: must be finite (no NaN or inf), got {a.tolist()}")
+    return np.minimum(np.maximum(a, low), high)
 
 
 def _check_rates(physics_hz, agent_hz):

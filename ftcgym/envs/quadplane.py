@@ -29,7 +29,7 @@ import numpy as np
 from gymnasium import spaces
 
 from .faults import QUADPLANE_KINDS, FaultSchedule, parse_faults, resolve
-from .flight_env import FlightEnv
+from .flight_env import FlightEnv, check_action
 from .frames import quat_from_euler
 from .pusher import PusherMotor
 from .quadplane_aero import aero_wrench
@@ -126,7 +126,7 @@ class QuadPlaneEnv(FlightEnv):
 
     # ----------------------------------------------------------------------------------------- step
     def step(self, action):
-        command = _check_action(action)
+        command = check_action(action, ACTION_LOW, ACTION_HIGH, "4 hover-rotor commands, pusher throttle, aileron, elevator, rudder, skew command")
         self._set_commands(command)
         for _ in range(self.substeps):
             self._physics_step()
@@ -199,7 +199,7 @@ class QuadPlaneEnv(FlightEnv):
         return float(math.atan2(w, u)) if abs(u) + abs(w) > 1e-9 else 0.0
 
     def _info(self) -> dict:
-        rotors, ref, pusher = self.hover_rotors, self._reference, self.pusher
+        rotors, pusher = self.hover_rotors, self.pusher
         return {
             "time": self.time,
             "fault": self._faults.current(self.time),
@@ -213,17 +213,5 @@ class QuadPlaneEnv(FlightEnv):
                 "pusher": {"omega": pusher.omega, "current": pusher.current, "thrust": pusher.thrust,
                            "theta_1": pusher.theta_1, "c_v": pusher.c_v, "I_0": pusher.I_0},
             },
-            "reference": {"position": ref.position.copy(), "velocity": ref.velocity.copy(), "yaw": ref.yaw},
-            "crashed": self._crashed,
-            "termination": self._termination,
+            **self._outcome(),
         }
-
-
-def _check_action(action) -> np.ndarray:
-    a = np.asarray(action, dtype=np.float64)
-    if a.shape != (9,):
-        raise ValueError("action: expected shape (9,): 4 hover-rotor commands, pusher throttle, aileron, elevator, "
-                         f"rudder, skew command; got shape {a.shape}")
-    if not np.isfinite(a).all():
-        raise ValueError(f"action: must be finite (no NaN or inf), got {a.tolist()}")
-    return np.minimum(np.maximum(a, ACTION_LOW), ACTION_HIGH)

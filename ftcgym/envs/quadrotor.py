@@ -25,7 +25,7 @@ import numpy as np
 from gymnasium import spaces
 
 from .faults import FaultSchedule, parse_faults, resolve
-from .flight_env import FlightEnv
+from .flight_env import FlightEnv, check_action
 from .frames import quat_from_euler
 from .rotors import RotorSet
 from .sensors import ACCEL_LIMIT, GYRO_LIMIT, QuadrotorSensors, SensorConfig
@@ -33,6 +33,7 @@ from .vehicles import YAW_SIGNS, make_params
 
 SENSOR_KEYS = ("gyro", "accel", "attitude", "position", "velocity", "rotor_speed")
 BOUNDS = 100.0                    # m, half-width and ceiling of the flight box
+ROTOR_LOW, ROTOR_HIGH = np.zeros(4), np.ones(4)
 CRASH_PENALTY = 100.0
 MAX_SPEED = 100.0                 # m/s, observation bound on velocities (far above any multirotor's)
 
@@ -99,7 +100,7 @@ class QuadrotorEnv(FlightEnv):
 
     # ----------------------------------------------------------------------------------------- step
     def step(self, action):
-        command = _check_action(action)
+        command = check_action(action, ROTOR_LOW, ROTOR_HIGH, "normalised rotor commands")
         self._omega_cmd = self.rotors.command_to_omega(command)
         for _ in range(self.substeps):
             self._physics_step()
@@ -158,7 +159,7 @@ class QuadrotorEnv(FlightEnv):
 
     def _info(self) -> dict:
         """A fresh info dict (DESIGN.md contract)."""
-        rotors, ref = self.rotors, self._reference
+        rotors = self.rotors
         airspeed_vec = self._vel - self._wind
         return {
             "time": self.time,
@@ -175,16 +176,5 @@ class QuadrotorEnv(FlightEnv):
                 "rotor_effectiveness": rotors.effectiveness.copy(),
                 "rotor_speed": rotors.omega.copy(),
             },
-            "reference": {"position": ref.position.copy(), "velocity": ref.velocity.copy(), "yaw": ref.yaw},
-            "crashed": self._crashed,
-            "termination": self._termination,
+            **self._outcome(),
         }
-
-
-def _check_action(action) -> np.ndarray:
-    a = np.asarray(action, dtype=np.float64)
-    if a.shape != (4,):
-        raise ValueError(f"action: expected shape (4,) normalised rotor commands, got shape {a.shape}")
-    if not np.isfinite(a).all():
-        raise ValueError(f"action: must be finite (no NaN or inf), got {a.tolist()}")
-    return np.minimum(np.maximum(a, 0.0), 1.0)
