@@ -90,6 +90,14 @@ class FlightEnv(gym.Env):
         """Angle between the body -z axis and up."""
         return float(np.arccos(np.clip(self._R[2, 2], -1.0, 1.0)))
 
+    def _with_reference(self, readings: dict) -> dict:
+        """The readings plus the task's set-point now (observation keys reference_*)."""
+        ref = self._reference = self.task.reference(self.time)
+        readings["reference_position"] = ref.position
+        readings["reference_velocity"] = ref.velocity
+        readings["reference_yaw"] = np.array([ref.yaw])
+        return readings
+
     def _outcome(self) -> dict:
         """The `info` entries every env reports after `truth`: the task's reference and the crash state."""
         ref = self._reference

@@ -175,12 +175,7 @@ class QuadPlaneEnv(FlightEnv):
                                      self.pusher.omega, self.pusher.current)
         readings["pitot_airspeed"][0] = self._faults.apply_to_pitot(self.time, float(readings["pitot_airspeed"][0]))
         self._faults.apply_to_sensors(self.time, readings)
-        ref = self.task.reference(self.time)
-        self._reference = ref
-        readings["reference_position"] = ref.position
-        readings["reference_velocity"] = ref.velocity
-        readings["reference_yaw"] = np.array([ref.yaw])
-        return readings
+        return self._with_reference(readings)
 
     def _reward(self) -> float:
         if self._crashed:

@@ -143,12 +143,7 @@ class QuadrotorEnv(FlightEnv):
         readings = self.sensors.read(self._pos, self._vel, self._quat, self._rates, self._specific_force,
                                      self.rotors.omega)
         self._faults.apply_to_sensors(self.time, readings)
-        ref = self.task.reference(self.time)
-        self._reference = ref
-        readings["reference_position"] = ref.position
-        readings["reference_velocity"] = ref.velocity
-        readings["reference_yaw"] = np.array([ref.yaw])
-        return readings
+        return self._with_reference(readings)
 
     def _reward(self, command: np.ndarray) -> float:
         if self._crashed:
