@@ -92,19 +92,22 @@ def synthetic_flight(seconds: float, step_time: float, seed: int = 0):
 
 @pytest.mark.parametrize("step_time", [30.0, None])
 def test_synthetic_mass_step_is_detected_and_nothing_before(step_time):
-    """Default settings: c_hat stays within 5% of c before the step (alarm at 0.6 c), then falls."""
+    """Default settings: c_hat stays within 5% of c and the CUSUM near 0 before the step; then c_hat
+    falls and the CUSUM (drift ~0.3 per s here, toward 0.8 c) crosses its threshold within 15 s."""
     detector = IvChangeDetector(MASS, LAMBDA_1, DT)
-    ratio_before = []
-    for readings, t in synthetic_flight(42.0, step_time or np.inf):
+    ratio_before, cusum_before = [], []
+    for readings, t in synthetic_flight(46.0, step_time or np.inf):
         detector.update(readings, t)
         if detector.warmup <= t < (step_time or np.inf):
             ratio_before.append(detector.c_hat / detector.c)
+            cusum_before.append(detector.cusum)
     status = detector.status()
     assert 0.95 < min(ratio_before) and max(ratio_before) < 1.05
+    assert max(cusum_before) < 0.05 * detector.cusum_threshold
     if step_time is None:
-        assert not status["alarm"]
+        assert not status["alarm"] and status["cusum"] < 0.05 * detector.cusum_threshold
     else:
-        assert status["alarm"] and step_time < status["alarm_time"] < step_time + 10.0
+        assert status["alarm"] and step_time + 5.0 < status["alarm_time"] < step_time + 15.0
         assert status["c_ratio"] < 0.6                            # c halves: 0.5 once the memory has forgotten
     assert status["isolated"] is None
 
