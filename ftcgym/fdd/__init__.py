@@ -20,6 +20,7 @@ DETECTORS = {
     "loe_kalman": "ftcgym.fdd.loe_kalman:loe_kalman_wrapper",
     "aekf": "ftcgym.fdd.aekf:aekf_wrapper",
     "iv_change": "ftcgym.fdd.iv_change:iv_change_wrapper",
+    "airdata_ekf": "ftcgym.fdd.airdata_ekf:airdata_ekf_wrapper",
 }
 
 

@@ -1,0 +1,322 @@
+"""Synthetic air data: the airspeed and wind EKF of 001 (Larocque 2023) Sec. 3-5 and App. B.
+
+Larocque, "Synthetic Air Data System for Pitot Tube Fault Detection on Hybrid Vehicle", MSc thesis,
+TU Delft 2023 (seed 001). Pipeline per sample:
+
+1. Prefilter (Sec. 5): every measurement AND every input through the same 2nd-order 5 Hz Butterworth
+   low-pass (`butterworth_prefilter`: scipy.signal.butter, bilinear transform with the cutoff prewarped, at
+   the input sample rate), so inputs and measurements carry the same lag.
+2. EKF at 25 Hz (Sec. 7.1 "ran at 25 Hz", App. B) on the filtered samples:
+   x = [u v w mu_x mu_y mu_z] (eq. 34/43): air velocity in body FRD and wind in NED;
+   u = [a_x a_y a_z p q r phi theta psi omega_p omega_h Lambda] (eq. 35/44; attitude kept as a rotation
+   matrix, omega_h as the four hover-rotor speeds);
+   z = [V_N V_E V_D a_x a_y a_z] (eq. 36/45): GNSS velocity = R [u v w] + mu (eq. 3) and the specific
+   force of the component model a = F(x, u) / m (eq. 31-33).
+   Kinematics eq. (4): [u v w]' = -(omega + w_omega) x [u v w] + R^T [0 0 g] + a + w_a; wind eq. (5):
+   random walk. Q, R: Table 1 (Q per EKF step, see `ekf_step`). Wind process noise x100 for the first
+   20 s (Sec. 5.4); a_z measurement variance x K_az(Lambda) (eq. 39 corrected, `az_covariance_gain`).
+   Initial state 0, P0 = I except the wind states, which start at their Q (Sec. 5.3).
+3. The filter starts once airborne (Sec. 5.3): when the height above the first position reading passes
+   `takeoff_height`.
+
+The force model (`ComponentForceModel`) is 001's (eq. 6-30: fuselage, hover rotors, wing, pusher; control
+surfaces and tail neglected as 001 Sec. 4 does), written in the same generalised forms as the simulator's
+(`ftcgym/envs/quadplane_aero.py`, `ftcgym/envs/pusher.py`, copied here so that fdd imports no simulator
+code), with its coefficients taken from the vehicle parameter set passed in and then given an error
+(issue 6: a detector must not know the plant exactly): by default every aerodynamic and propulsive
+coefficient is multiplied by 1 + `coefficient_error` (10%); with `error_seed` each one gets a seeded
+random sign, 1 +- error.
+
+Errata and departures (001 as printed):
+- eq. (39) rises from 1 to 100 between 60 and 70 deg; the text (and seeds/README.md) says the multiplier
+  falls from 100 (<= 60 deg) to 1 (>= 70 deg): K_az = 10**(2 (70 - Lambda) / 10) between.
+- eq. (52) prints x_pred = f(x, u) dt; the Euler step is x_pred = x + f(x, u) dt. eq. (53) uses the
+  continuous Jacobian F; the discrete transition is Phi = I + F dt (001's onboard code multiplies P by
+  F alone, which resets the wind covariance to Q every step).
+- eq. (21) prints C_L = C_L0 alpha + C_L0; meant C_L = C_La alpha + C_L0.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy import signal
+
+GRAVITY = 9.81
+TWO_PI = 2.0 * math.pi
+#: 001 Table 1: process noise (accelerometer, gyro, wind) and measurement noise (GNSS velocity, model accel).
+TABLE_1_Q = {"accel": (1.2e-4, 6.2e-4, 3.0e-4), "gyro": (3.1e-9, 1.2e-9, 1.3e-9), "wind": (1.25e-4, 1.25e-4, 1.25e-5)}
+TABLE_1_R = (4.1e-5, 4.2e-5, 1.4e-4, 5e-5, 1e-4, 5e-4)
+PREFILTER_CUTOFF_HZ = 5.0          # 001 Sec. 5
+EKF_HZ = 25.0                      # 001 Sec. 7.1
+WIND_BOOST, WIND_BOOST_SECONDS = 100.0, 20.0   # 001 Sec. 5.4
+#: Coefficients the detector's model gets wrong (aerodynamic and propulsive); geometry and mass stay exact.
+ERROR_COEFFICIENTS = ("fuselage_drag_area", "hover_thrust_coefficient", "hover_drag_coefficient",
+                      "pusher_thrust_coefficients", "pusher_thrust_k3", "wing_cl0", "wing_cl_alpha", "wing_cd0",
+                      "wing_oswald", "wing_cn90", "wing_spanwise_friction")
+
+
+def az_covariance_gain(skew: float) -> float:
+    """K_az of 001 eq. (39), corrected: 100 at skew <= 60 deg, 1 at >= 70 deg, 10**(2 (70 - skew_deg) / 10)
+    between (eq. 39 as printed rises from 1 to 100; the text says it falls, seeds/README.md erratum)."""
+    deg = math.degrees(skew)
+    if deg <= 60.0:
+        return 100.0
+    if deg >= 70.0:
+        return 1.0
+    return 10.0 ** (2.0 * (70.0 - deg) / 10.0)
+
+
+def butterworth_prefilter(sample_hz: float, cutoff_hz: float = PREFILTER_CUTOFF_HZ):
+    """(b, a) of 001 Sec. 5's prefilter: 2nd-order Butterworth low-pass, bilinear transform with the cutoff
+    prewarped (scipy.signal.butter with fs), so the digital -3 dB point is exactly `cutoff_hz`."""
+    if not (0.0 < cutoff_hz < 0.5 * sample_hz):
+        raise ValueError(f"prefilter: cutoff {cutoff_hz!r} Hz must lie in (0, {0.5 * sample_hz}) Hz")
+    return signal.butter(2, cutoff_hz, btype="low", fs=sample_hz)
+
+
+class _Lowpass:
+    """The same biquad on several channels (direct form II transposed), started at steady state."""
+
+    def __init__(self, b, a):
+        self.b, self.a, self.z = np.asarray(b) / a[0], np.asarray(a) / a[0], None
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        b, a = self.b, self.a
+        if self.z is None:
+            self.z = np.outer(signal.lfilter_zi(b, a), x)
+        y = b[0] * x + self.z[0]
+        self.z[0] = b[1] * x - a[1] * y + self.z[1]
+        self.z[1] = b[2] * x - a[2] * y
+        return y
+
+
+def rotation_from_quaternion(q) -> np.ndarray:
+    """Body FRD -> world NED rotation of a unit quaternion (x, y, z, w)."""
+    x, y, z, w = q / np.linalg.norm(q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def _cross_matrix(v) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def _expit(x: float) -> float:
+    return 0.5 * (1.0 + math.tanh(0.5 * x))
+
+
+class ComponentForceModel:
+    """001 eq. (6)-(33): specific force a = (F_fuselage + F_hover + F_wing + T_pusher) / m in body FRD.
+
+    Coefficients come from `params` (a VSQP parameter set, read by attribute), with the ERROR_COEFFICIENTS
+    multiplied by 1 + coefficient_error (error_seed None) or 1 +- coefficient_error with seeded random signs.
+    `scale` holds the factor applied to each.
+    """
+
+    def __init__(self, params, coefficient_error: float = 0.10, error_seed: int | None = None):
+        if not (math.isfinite(coefficient_error) and -1.0 < coefficient_error < 1.0):
+            raise ValueError(f"coefficient_error: must be in (-1, 1), got {coefficient_error!r}")
+        rng = None if error_seed is None else np.random.default_rng(error_seed)
+        self.scale = {name: 1.0 + coefficient_error * (1.0 if rng is None else float(rng.choice((-1.0, 1.0))))
+                      for name in ERROR_COEFFICIENTS}
+        c = {name: np.asarray(getattr(params, name), dtype=float) * self.scale[name] for name in ERROR_COEFFICIENTS}
+        p = params
+        self.mass, self.rho = float(p.mass), float(p.air_density)
+        self.fuselage_cda = c["fuselage_drag_area"]
+        self.k_f = float(c["hover_thrust_coefficient"]) * math.cos(p.hover_tilt)
+        self.k_d = float(c["hover_drag_coefficient"])
+        self.pusher_b, self.pusher_a = c["pusher_thrust_coefficients"]
+        self.pusher_k3, self.pusher_d = float(c["pusher_thrust_k3"]), float(p.pusher_diameter)
+        self.wing_area, self.incidence = float(p.wing_area), float(p.wing_incidence)
+        self.cl0, self.cl_alpha, self.cd0 = float(c["wing_cl0"]), float(c["wing_cl_alpha"]), float(c["wing_cd0"])
+        self.k_induced = 1.0 / (math.pi * p.aspect_ratio * float(c["wing_oswald"]))   # eq. (23)
+        self.cn90, self.friction = float(c["wing_cn90"]), float(c["wing_spanwise_friction"])
+        self.stall_pos, self.stall_neg = p.wing_alpha_stall
+        self.blend = float(p.stall_blend)
+
+    def fuselage(self, u, v, w, speed):
+        """eq. (8) F_x = K_xf u^2, eq. (10) F_y = K_yfb beta V^2 (beta ~ v / V), plus a cross-flow z drag."""
+        k = 0.5 * self.rho
+        ax, ay, az = self.fuselage_cda
+        return np.array([-k * ax * u * abs(u), -k * ay * speed * v, -k * az * w * abs(w)])
+
+    def hover(self, u, v, omega_h):
+        """eq. (15) T_zh = K_zh omega_h^2 (summed over the rotors) and eq. (16)-(17) rotor drag F = K_h (u, v),
+        the slope K_h = -k_d sum|omega| growing with RPM (001 App. A, Fig. 17a)."""
+        drag = -self.k_d * float(np.sum(np.abs(omega_h)))
+        return np.array([drag * u, drag * v, -self.k_f * float(np.sum(omega_h * omega_h))])
+
+    def pusher(self, u, omega_p):
+        """eq. (13)-(14): T = rho D^4 (b n^2 + a n V / D) + K_xp3 V, n = omega / 2 pi, V = max(u, 0)."""
+        n, V, d = omega_p / TWO_PI, max(u, 0.0), self.pusher_d
+        return self.rho * d ** 4 * (self.pusher_b * n * n + self.pusher_a * n * V / d) + self.pusher_k3 * V
+
+    def wing(self, u, v, w, skew):
+        """eq. (18)-(30) generalised as the simulator's wing: lift from the chordwise flow V_c = u sin L - v cos L
+        (eq. 27), C_L = C_L0 + C_La alpha (eq. 21, corrected), C_D = C_D0 + C_L^2 / (pi A e) (eq. 23), blended
+        into a flat plate past the stall; resolving on the skewed chord gives eq. (30)'s side force."""
+        sl, cl_ = math.sin(skew), math.cos(skew)
+        v_chord, v_span = u * sl - v * cl_, u * cl_ + v * sl
+        alpha = (math.atan2(w, v_chord) + self.incidence + math.pi) % TWO_PI - math.pi
+        attached = _expit(self.blend * (self.stall_pos - alpha)) * _expit(self.blend * (alpha - self.stall_neg))
+        cl_lin = self.cl0 + self.cl_alpha * alpha
+        sa, ca = math.sin(alpha), math.cos(alpha)
+        cl = attached * cl_lin + (1.0 - attached) * self.cn90 * sa * ca
+        cd = self.cd0 + attached * self.k_induced * cl_lin * cl_lin + (1.0 - attached) * self.cn90 * sa * sa
+        k = 0.5 * self.rho * self.wing_area * math.hypot(v_chord, w)
+        f_chord, f_normal = k * (cl * w - cd * v_chord), k * (-cl * v_chord - cd * w)   # eq. (18)-(19)
+        f_span = -0.5 * self.rho * self.wing_area * self.friction * abs(v_span) * v_span
+        return np.array([f_chord * sl + f_span * cl_, -f_chord * cl_ + f_span * sl, f_normal])
+
+    def specific_force(self, air_velocity_body, omega_p: float, omega_h, skew: float) -> np.ndarray:
+        """eq. (31)-(33): [a_x, a_y, a_z] = (F_f + F_w + F_h + T_p e_x) / m, m/s^2."""
+        u, v, w = (float(x) for x in air_velocity_body)
+        speed = math.sqrt(u * u + v * v + w * w)
+        force = self.fuselage(u, v, w, speed) + self.wing(u, v, w, skew) + self.hover(u, v, np.asarray(omega_h))
+        force[0] += self.pusher(u, omega_p)
+        return force / self.mass
+
+
+def ekf_step(x, P, dt, inputs, z, h, H, Q, R):
+    """One EKF cycle of 001 App. B with the kinematics of eq. (4)-(5). Returns (x, P, innovation y, S).
+
+    inputs = (a, omega, Rot): filtered specific force, body rates and body->NED rotation. Prediction:
+    x- = x + f(x, u) dt (eq. 52 corrected), P- = Phi P Phi^T + L Q L^T with Phi = I + F dt (eq. 53 with the
+    discrete transition), F = df/dx (eq. 48), L = df/dw (eq. 49) for w = [w_a, w_omega, w_mu] and Q
+    (9 x 9, Table 1) taken as the covariance added per EKF step, as 001's onboard filter does. Update:
+    eq. (54)-(58) with the measurement function h(x-) and its Jacobian H(x-) (callables).
+    """
+    a, omega, Rot = inputs
+    vel = x[:3]
+    f = np.zeros(6)
+    f[:3] = -np.cross(omega, vel) + Rot.T @ np.array([0.0, 0.0, GRAVITY]) + a     # eq. (4); eq. (5): wind f = 0
+    F = np.zeros((6, 6))
+    F[:3, :3] = -_cross_matrix(omega)
+    L = np.zeros((6, 9))
+    L[:3, :3] = np.eye(3)                       # accelerometer noise w_a
+    L[:3, 3:6] = _cross_matrix(vel)             # gyro noise: -(w_omega x v) = v x w_omega
+    L[3:, 6:] = np.eye(3)                       # wind random walk w_mu
+    x_pred = x + f * dt                                            # eq. (52), corrected
+    Phi = np.eye(6) + F * dt
+    P_pred = Phi @ P @ Phi.T + L @ Q @ L.T                         # eq. (53)
+    Hx = H(x_pred)
+    y = z - h(x_pred)                                              # eq. (54)
+    S = Hx @ P_pred @ Hx.T + R                                     # eq. (55), M = I
+    K = np.linalg.solve(S, Hx @ P_pred).T                          # eq. (56)
+    x_new = x_pred + K @ y                                         # eq. (57)
+    P_new = (np.eye(6) - K @ Hx) @ P_pred                          # eq. (58)
+    return x_new, 0.5 * (P_new + P_new.T), y, S
+
+
+class AirdataEkfDetector:
+    """001's synthetic air data EKF; outputs airspeed and wind. The pitot fault alarm is not implemented yet
+    (always False).
+
+    Readings (QuadPlane-v0 keys): accel (specific force, FRD), gyro, attitude (x y z w, FRD -> NED),
+    gnss_velocity (NED), position (NED, for the take-off gate), skew (rad), hover_rotor_speed (4, rad/s),
+    pusher_speed (rad/s).
+
+    Parameters: params (the vehicle parameter set, read by attribute), sample_hz (rate of `update` calls),
+    ekf_hz (25), prefilter_hz (5), Q_accel, Q_gyro, Q_wind, R (Table 1), wind_boost (x100) for
+    wind_boost_seconds (20 s) after the start, takeoff_height (m above the first position reading),
+    coefficient_error, error_seed (see ComponentForceModel), velocity_key (GNSS velocity reading).
+    """
+
+    name = "airdata_ekf"
+    output_fields = {"airspeed": (0.0, 200.0, (1,)), "wind": (-100.0, 100.0, (3,))}
+
+    def __init__(self, params, sample_hz: float, ekf_hz: float = EKF_HZ, prefilter_hz: float = PREFILTER_CUTOFF_HZ,
+                 Q_accel=TABLE_1_Q["accel"], Q_gyro=TABLE_1_Q["gyro"], Q_wind=TABLE_1_Q["wind"], R=TABLE_1_R,
+                 wind_boost: float = WIND_BOOST, wind_boost_seconds: float = WIND_BOOST_SECONDS,
+                 takeoff_height: float = 1.0, coefficient_error: float = 0.10, error_seed: int | None = None,
+                 velocity_key: str = "gnss_velocity"):
+        if not (math.isfinite(sample_hz) and sample_hz > 0 and 0 < ekf_hz <= sample_hz):
+            raise ValueError(f"sample_hz {sample_hz!r} and ekf_hz {ekf_hz!r}: need 0 < ekf_hz <= sample_hz")
+        self.model = ComponentForceModel(params, coefficient_error, error_seed)
+        self.sample_hz, self.dt = float(sample_hz), 1.0 / float(ekf_hz)
+        self.Q = np.diag(np.concatenate([Q_accel, Q_gyro, Q_wind]).astype(float))
+        self.R = np.diag(np.asarray(R, dtype=float))
+        self.wind_boost, self.wind_boost_seconds = float(wind_boost), float(wind_boost_seconds)
+        self.takeoff_height, self.velocity_key = float(takeoff_height), velocity_key
+        self._ba = butterworth_prefilter(sample_hz, prefilter_hz)
+        self.reset()
+
+    def reset(self) -> None:
+        self.x = np.zeros(6)                                   # Sec. 5.3: body velocity and wind start at 0
+        self.P = np.diag(np.concatenate([np.ones(3), np.diag(self.Q)[6:]]))
+        self.innovation = np.zeros(6)
+        self.started, self.start_time, self._next_time = False, None, None
+        self._ground_z, self._last_q = None, None
+        self._filter = _Lowpass(*self._ba)
+        self._filtered = None
+
+    def update(self, readings: dict, time: float, command=None) -> None:
+        q = np.asarray(readings["attitude"], dtype=float)
+        if self._last_q is not None and q @ self._last_q < 0.0:   # keep the quaternion's sign continuous
+            q = -q
+        self._last_q = q
+        sample = np.concatenate([readings["accel"], readings["gyro"], q, readings[self.velocity_key],
+                                 readings["pusher_speed"], readings["hover_rotor_speed"], readings["skew"]])
+        if not np.all(np.isfinite(sample)):
+            raise ValueError(f"airdata_ekf: a reading is not finite at t = {time}: {sample.tolist()}")
+        self._filtered = self._filter(sample)                  # Sec. 5: inputs and measurements alike
+        z_pos = float(readings["position"][2])
+        if self._ground_z is None:
+            self._ground_z = z_pos
+        if not self.started:
+            if self._ground_z - z_pos < self.takeoff_height:   # Sec. 5.3: start once airborne
+                return
+            self.started, self.start_time, self._next_time = True, float(time), float(time)
+        if time + 1e-9 >= self._next_time:
+            self._next_time += self.dt
+            self._ekf(time)
+
+    def _ekf(self, time: float) -> None:
+        s = self._filtered
+        a, omega, Rot = s[0:3], s[3:6], rotation_from_quaternion(s[6:10])
+        v_gnd, omega_p, omega_h, skew = s[10:13], float(s[13]), s[14:18], float(s[18])
+        model = self.model
+        Q = self.Q.copy()
+        if time - self.start_time < self.wind_boost_seconds:  # Sec. 5.4: faster wind convergence
+            Q[6:, 6:] *= self.wind_boost
+        R = self.R.copy()
+        R[5, 5] *= az_covariance_gain(skew)                  # eq. (39), corrected
+
+        def h(x):                                            # eq. (3) and (31)-(33)
+            return np.concatenate([Rot @ x[:3] + x[3:], model.specific_force(x[:3], omega_p, omega_h, skew)])
+
+        def H(x):                                            # eq. (50): analytic for GNSS, central differences for the model
+            G = np.zeros((6, 6))
+            G[:3, :3], G[:3, 3:] = Rot, np.eye(3)
+            for j in range(3):
+                step = np.zeros(3)
+                step[j] = 1e-4
+                G[3:, j] = (model.specific_force(x[:3] + step, omega_p, omega_h, skew)
+                            - model.specific_force(x[:3] - step, omega_p, omega_h, skew)) / 2e-4
+            return G
+
+        z = np.concatenate([v_gnd, a])
+        self.x, self.P, self.innovation, _ = ekf_step(self.x, self.P, self.dt, (a, omega, Rot), z, h, H, Q, R)
+
+    @property
+    def airspeed(self) -> float:
+        return float(np.linalg.norm(self.x[:3]))
+
+    def outputs(self) -> dict:
+        return {"airspeed": np.array([min(self.airspeed, 200.0)]), "wind": np.clip(self.x[3:], -100.0, 100.0)}
+
+    def status(self) -> dict:
+        return {"alarm": False, "alarm_time": None, "isolated": None, "started": self.started,
+                "start_time": self.start_time, "airspeed": self.airspeed, "wind": self.x[3:].tolist(),
+                "air_velocity_body": self.x[:3].tolist(), "innovation": self.innovation.tolist()}
+
+
+def airdata_ekf_wrapper(env, params="vehicle", **kwargs):
+    """`env` (QuadPlane-v0 or QuadPlaneAutopilot-v0) wrapped with an AirdataEkfDetector at the env's agent
+    rate; params="vehicle" reads the env's parameter set (the detector then errs by `coefficient_error`)."""
+    from .wrapper import DetectorWrapper
+    if isinstance(params, str) and params == "vehicle":
+        params = env.get_wrapper_attr("params")
+    return DetectorWrapper(env, AirdataEkfDetector(params, env.get_wrapper_attr("agent_hz"), **kwargs))
