@@ -257,7 +257,6 @@ class QuadPlaneAutopilot:
         """Attitude (rotation matrix) and hover-rotor collective (N) for the desired acceleration."""
         m = self.params.mass
         force = m * (accel - np.array([0.0, 0.0, GRAVITY]))            # NED, what rotors + wing must give
-        lift = self._wing_lift(nav, airspeed)                           # N, along body -z
         if pitch is None:
             tilt_limit = math.radians(self.gains.max_tilt_deg)
             axis = _limit_tilt(force / max(np.linalg.norm(force), 1e-6), tilt_limit)
@@ -268,17 +267,20 @@ class QuadPlaneAutopilot:
             bank = float(np.clip(math.atan2(float(accel[:2] @ right), GRAVITY), -bank_limit, bank_limit))
             pitch = float(np.clip(pitch, -math.radians(self.gains.max_pitch_deg), math.radians(self.gains.max_pitch_deg)))
             R_des = _euler_matrix(bank, pitch, yaw)
-        needed = float(-force @ R_des[:, 2]) - lift                    # along -z_des
+        needed = float(-force @ R_des[:, 2]) - self._wing_lift(nav, airspeed, pitch is not None)   # along -z_des
         if self.phase == "cruise" and needed < self.gains.rotor_assist_floor * m * GRAVITY:
             needed = 0.0                       # the wing flies; the rotors stay off rather than flicker
         return R_des, max(needed, 0.0)
 
-    def _wing_lift(self, nav, airspeed) -> float:
-        """Lift along body -z from the model at the given airspeed, the measured skew and alpha = pitch minus
-        flight-path angle (001 eq. 8.6 takes the pitch, i.e. level flight)."""
+    def _wing_lift(self, nav, airspeed, at_trim: bool = False) -> float:
+        """Lift along body -z from the model at the given airspeed and the measured skew, at alpha = pitch minus
+        flight-path angle (001 eq. 8.6 takes the pitch, i.e. level flight) or, in forward flight, at the trim
+        alpha: there the pitch loop flies the altitude with the wing, and the rotors make up only what the
+        wing cannot carry at this airspeed (compensating the pitch loop's own lift changes would fight it)."""
         if airspeed < 1.0 or self.phase in QUAD_PHASES:    # hovering, the flow's direction is unknown
             return 0.0
-        air = nav.air_velocity(airspeed)
+        alpha = self._trim_pitch(airspeed) if at_trim else nav.alpha
+        air = airspeed * np.array([math.cos(alpha), 0.0, math.sin(alpha)])
         force, _ = aero_wrench(self.params, air, np.zeros(3), nav.skew, np.zeros(3), NO_ROTORS, ONES, 0.0, 0.0)
         return float(-force[2])
 
