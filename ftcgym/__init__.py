@@ -7,6 +7,7 @@ _ENVS = {
     "ftcgym/Quadrotor-v0": "ftcgym.envs.quadrotor:QuadrotorEnv",
     "ftcgym/QuadPlane-v0": "ftcgym.envs.quadplane:QuadPlaneEnv",
     "ftcgym/QuadPlaneAutopilot-v0": "ftcgym.envs.quadplane_autopilot_env:QuadPlaneAutopilotEnv",
+    "ftcgym/RotorLossRecovery-v0": "ftcgym.training.tasks:RotorLossRecoveryEnv",
 }
 for _id, _entry in _ENVS.items():
     if _id not in registry:

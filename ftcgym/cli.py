@@ -3,6 +3,8 @@
     ftcgym bench [--scenario NAME...] [--policy NAME...] [--episodes N] [--seed S] [--workers W]
                  [--env-kwargs JSON] [--out DIR] [--list]
     ftcgym perf ...   (see ftcgym/perf.py)
+    ftcgym train --config FILE_OR_TASK [--algo PPO|SAC] [--n-envs N] [--total-steps N] [--seed S] [--out DIR]
+    ftcgym evaluate MODEL [--scenario NAME] [--episodes N] [--seed S]
 
 `ftcgym bench` with no arguments runs the default scenarios and prints a summary table (DESIGN.md
 "Benchmark").
@@ -34,6 +36,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_replay(subparsers)
     _add_perf(subparsers)
     _add_trim(subparsers)
+    _add_train(subparsers)
+    _add_evaluate(subparsers)
     return parser
 
 
@@ -241,6 +245,73 @@ def _run_trim(args, argv: list[str]) -> int:
 
     params = make_vsqp_params(args.vehicle, args.vehicle_overrides)
     print(format_trim_table(trim_table(params, args.airspeeds or default_airspeeds(params))))
+    return 0
+
+
+# ---- train and evaluate (ftcgym/training; Stable-Baselines3 and torch are imported only when they run) ----
+
+def _add_train(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "train", help="train a recovery policy with Stable-Baselines3",
+        description="Train a policy from a task config (YAML in the style of RL Zoo hyperparameter files). "
+                    "Writes the model, its VecNormalize statistics, checkpoints, evaluations and a manifest "
+                    "to --out.")
+    parser.add_argument("--config", required=True, metavar="FILE_OR_TASK",
+                        help="a YAML config file or a built-in task (rotor-loss-recovery)")
+    parser.add_argument("--algo", type=str.upper, choices=("PPO", "SAC"),
+                        help="algorithm (default: the config's default_algo)")
+    parser.add_argument("--n-envs", type=_positive_int, metavar="N", help="parallel envs (default: the config's)")
+    parser.add_argument("--total-steps", type=_positive_int, metavar="N",
+                        help="env steps to train for (default: the config's n_timesteps)")
+    parser.add_argument("--seed", type=int, metavar="S", help="seed (default: the config's, else 0)")
+    parser.add_argument("--out", metavar="DIR", help="output directory (default: train_out/<task>-<algo>-seed<S>)")
+    parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=True,
+                        help="show a progress bar (default: on)")
+    parser.set_defaults(run=_run_train)
+
+
+def _run_train(args, argv: list[str]) -> int:
+    from ftcgym.training.config import load_config
+    try:
+        config = load_config(args.config, args.algo, args.n_envs, args.total_steps, args.seed)
+    except ValueError as error:
+        raise SystemExit(f"ftcgym train: {error}") from None
+    from ftcgym.training.train import train
+
+    out = args.out or os.path.join("train_out", f"{config.task}-{config.algo}-seed{config.seed}")
+    manifest = train(config, out, progress=args.progress, command=shlex.join(["ftcgym", *argv]))
+    print(f"{manifest['steps']} steps in {manifest['wall_time_s']:.1f} s ({manifest['steps_per_s']:.0f} steps/s, "
+          f"{config.n_envs} envs); wrote model.zip, manifest.json to {out}")
+    return 0
+
+
+def _add_evaluate(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "evaluate", help="run the benchmark on a trained model",
+        description="Fly a model saved by `ftcgym train` (its folder or .zip) through a benchmark scenario "
+                    "as a policy, deterministic actions, and print the summary table of `ftcgym bench`.")
+    parser.add_argument("model", metavar="MODEL", help="the training output folder or a model .zip in it")
+    parser.add_argument("--scenario", default="quad-rotor-loss-hover", type=_scenario, metavar="NAME",
+                        help="benchmark scenario (default: quad-rotor-loss-hover)")
+    parser.add_argument("--episodes", type=_positive_int, metavar="N",
+                        help="episodes (default: the scenario's own)")
+    parser.add_argument("--seed", type=int, default=0, metavar="S", help="base seed (default: 0)")
+    parser.add_argument("--env-kwargs", type=_json_object, default={}, metavar="JSON",
+                        help="JSON object merged (top-level keys) into the scenario's gym.make kwargs")
+    parser.set_defaults(run=_run_evaluate)
+
+
+def _run_evaluate(args, argv: list[str]) -> int:
+    from ftcgym.benchmark.report import format_table
+    from ftcgym.training.evaluate import evaluate_model
+
+    started = time.perf_counter()
+    try:
+        summary, episodes = evaluate_model(args.model, args.scenario, args.episodes, args.seed, args.env_kwargs)
+    except FileNotFoundError as error:
+        raise SystemExit(f"ftcgym evaluate: {error}") from None
+    print(format_table(summary))
+    print(f"\n{len(episodes)} episodes in {time.perf_counter() - started:.1f} s")
     return 0
 
 

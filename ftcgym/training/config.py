@@ -1,0 +1,109 @@
+"""Training configs: one YAML file per task, in the style of RL Zoo hyperparameter files.
+
+    <task>:
+      env_id: ftcgym/RotorLossRecovery-v0   # any registered id
+      env_kwargs: {...}                     # gym.make keywords (the task's randomisation)
+      wrappers: [loe_kalman]                # detectors to wrap env_id with (ftcgym.fdd.DETECTORS)
+      default_algo: PPO
+      checkpoint_freq: 100000               # env steps
+      torch_threads: 1                      # torch.set_num_threads for the updates
+      eval: {scenario: quad-rotor-loss-hover, episodes: 4, freq: 50000, env_kwargs: {}}
+      PPO:                                  # one section per algorithm
+        n_envs: 2
+        n_timesteps: !!float 3e6
+        policy: MlpPolicy
+        normalize: {norm_obs: true, norm_reward: true}   # VecNormalize keywords; false: none
+        policy_kwargs: {net_arch: [128, 128]}
+        n_steps: 1024                       # every other key goes to the algorithm's constructor
+      SAC: {...}
+
+`load_config(name_or_path)` takes a path or the name of a built-in file in `ftcgym/training/configs`.
+"""
+from __future__ import annotations
+
+import copy
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import yaml
+
+CONFIG_DIR = Path(__file__).with_name("configs")
+ALGOS = ("PPO", "SAC")
+SECTION_KEYS = ("n_envs", "n_timesteps", "policy", "normalize", "policy_kwargs")
+
+
+@dataclass
+class TrainConfig:
+    """A resolved training run: the task's settings and the chosen algorithm's section."""
+
+    task: str
+    env_id: str
+    algo: str
+    n_envs: int
+    total_steps: int
+    seed: int = 0
+    policy: str = "MlpPolicy"
+    env_kwargs: dict = field(default_factory=dict)
+    wrappers: list = field(default_factory=list)
+    normalize: dict | None = field(default_factory=lambda: {"norm_obs": True, "norm_reward": True})
+    policy_kwargs: dict = field(default_factory=dict)
+    hyperparams: dict = field(default_factory=dict)   # the algorithm's constructor keywords
+    checkpoint_freq: int = 100_000
+    eval: dict | None = None
+    torch_threads: int = 1
+    source: str = ""
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def builtin_tasks() -> list[str]:
+    """Names of the built-in configs."""
+    return sorted(path.stem for path in CONFIG_DIR.glob("*.yaml"))
+
+
+def config_path(name_or_path: str) -> Path:
+    """The YAML file of a built-in task name or a path."""
+    path = Path(name_or_path)
+    if path.suffix in (".yaml", ".yml") or path.exists():
+        if not path.is_file():
+            raise ValueError(f"config: no file {name_or_path!r}")
+        return path
+    builtin = CONFIG_DIR / f"{name_or_path}.yaml"
+    if not builtin.is_file():
+        raise ValueError(f"config: {name_or_path!r} is neither a file nor a built-in task; "
+                         f"built-in: {', '.join(builtin_tasks())}")
+    return builtin
+
+
+def load_config(name_or_path: str, algo: str | None = None, n_envs: int | None = None,
+                total_steps: int | None = None, seed: int | None = None) -> TrainConfig:
+    """The run described by a config file (or built-in task name), with command-line overrides."""
+    path = config_path(name_or_path)
+    document = yaml.safe_load(path.read_text())
+    if not isinstance(document, dict) or len(document) != 1:
+        raise ValueError(f"config {path}: expected one top-level key, the task name")
+    (task, body), = document.items()
+    body = copy.deepcopy(body)
+    algo = (algo or body.get("default_algo") or "PPO").upper()
+    if algo not in ALGOS:
+        raise ValueError(f"algo: {algo!r}; accepted: {list(ALGOS)}")
+    if algo not in body:
+        raise ValueError(f"config {path}: no {algo} section; sections: {[a for a in ALGOS if a in body]}")
+    section = dict(body[algo])
+    normalize = section.pop("normalize", True)
+    normalize = {"norm_obs": True, "norm_reward": True} if normalize is True else (normalize or None)
+    config = TrainConfig(
+        task=task, env_id=body["env_id"], algo=algo,
+        n_envs=int(n_envs or section.pop("n_envs", 1)), total_steps=int(total_steps or section.pop("n_timesteps")),
+        seed=int(body.get("seed", 0) if seed is None else seed), policy=section.pop("policy", "MlpPolicy"),
+        env_kwargs=body.get("env_kwargs") or {}, wrappers=list(body.get("wrappers") or []),
+        normalize=normalize, policy_kwargs=section.pop("policy_kwargs", None) or {},
+        checkpoint_freq=int(body.get("checkpoint_freq", 100_000)), eval=body.get("eval"),
+        torch_threads=int(body.get("torch_threads", 1)), source=str(path))
+    section.pop("n_envs", None)
+    section.pop("n_timesteps", None)
+    config.hyperparams = section
+    if config.n_envs < 1 or config.total_steps < 1:
+        raise ValueError(f"n_envs and total steps must be >= 1, got {config.n_envs} and {config.total_steps}")
+    return config

@@ -1,0 +1,117 @@
+"""`LearnedPolicy`: a saved Stable-Baselines3 model behind the policy interface of DESIGN.md.
+
+For a model trained on `ftcgym/RotorLossRecovery-v0` it flies as the task does: the nominal controller
+until the `loe_kalman` alarm, then the model on `recovery_features` (normalised with the saved
+VecNormalize statistics), its action rescaled to motor commands and held for the task's `action_repeat`
+steps. For a model trained on another env id it acts on the raw observation at every step.
+Actions are deterministic.
+"""
+from __future__ import annotations
+
+import json
+import pickle
+import re
+from pathlib import Path
+
+import numpy as np
+
+from ftcgym.training.tasks import DETECTOR, recovery_features, to_motor_command
+
+TASK_ENV_ID = "ftcgym/RotorLossRecovery-v0"
+MODEL_FILE, NORMALIZER_FILE, MANIFEST_FILE = "model.zip", "vecnormalize.pkl", "manifest.json"
+
+
+def model_files(path) -> tuple[Path, Path, Path]:
+    """(model, VecNormalize statistics, manifest) of a training output folder or its model .zip."""
+    path = Path(path)
+    folder, model = (path, path / MODEL_FILE) if path.is_dir() else (path.parent, path)
+    if not model.is_file():
+        raise FileNotFoundError(f"model: no file {model}")
+    stem = model.name[:-len(".zip")] if model.name.endswith(".zip") else model.name
+    checkpoint = re.fullmatch(r"(.+)_(\d+)_steps", stem)    # CheckpointCallback's names
+    normalizer = folder / (NORMALIZER_FILE if stem == "model" else
+                           f"{checkpoint[1]}_vecnormalize_{checkpoint[2]}_steps.pkl" if checkpoint else
+                           f"{stem}_{NORMALIZER_FILE}")
+    manifest = next((f / MANIFEST_FILE for f in (folder, folder.parent) if (f / MANIFEST_FILE).is_file()),
+                    folder / MANIFEST_FILE)
+    return model, normalizer, manifest
+
+
+def load_normalizer(path):
+    """The pickled VecNormalize saved beside a model (statistics only: no env attached, not updating)."""
+    with open(path, "rb") as file:
+        normalizer = pickle.load(file)
+    normalizer.training = False
+    return normalizer
+
+
+class LearnedPolicy:
+    """A trained model as a benchmark policy. Build it with `LearnedPolicy.load(path, env)` or, during
+    training, from the live model and VecNormalize (`LearnedPolicy(model, normalizer, ...)`)."""
+
+    detector = DETECTOR
+
+    def __init__(self, model, normalizer=None, env_id: str = TASK_ENV_ID, task_kwargs: dict | None = None,
+                 env=None):
+        self.model, self.normalizer, self.env_id = model, normalizer, env_id
+        self.action_repeat = int((task_kwargs or {}).get("action_repeat", 2)) if env_id == TASK_ENV_ID else 1
+        self.nominal = None
+        if env_id == TASK_ENV_ID:
+            from ftcgym.agents import make_policy
+            if env is None:
+                raise ValueError("LearnedPolicy: a rotor-loss-recovery model needs the env (for its nominal controller)")
+            self.nominal = make_policy("nominal", env)
+            self.omega_max = env.unwrapped.params.omega_max
+        self.reset()
+
+    @classmethod
+    def load(cls, path, env=None) -> "LearnedPolicy":
+        """The model saved by `ftcgym train` at `path` (the output folder or its .zip) for `env`."""
+        from ftcgym.training.train import algorithm_class
+        model_path, normalizer_path, manifest_path = model_files(path)
+        manifest = json.loads(manifest_path.read_text()) if manifest_path.is_file() else {}
+        config = manifest.get("config", {})
+        algo = config.get("algo") or _algo_of(model_path)
+        model = algorithm_class(algo).load(model_path, device="cpu")
+        normalizer = load_normalizer(normalizer_path) if normalizer_path.is_file() else None
+        return cls(model, normalizer, config.get("env_id", TASK_ENV_ID), config.get("env_kwargs"), env)
+
+    @property
+    def thrust_axis_reference(self) -> np.ndarray:
+        return self.nominal.thrust_axis_reference if self.nominal is not None and not self.engaged else \
+            np.array([0.0, 0.0, -1.0])
+
+    def reset(self, obs: dict | None = None, info: dict | None = None) -> None:
+        self.engaged, self._steps, self._action = False, 0, None
+        if self.nominal is not None:
+            self.nominal.reset(obs, info)
+
+    def act(self, obs, info: dict) -> np.ndarray:
+        if self.nominal is None:
+            return self.predict(obs)
+        status = info.get("fdd", {}).get(DETECTOR)
+        if status is None:
+            raise ValueError(f"LearnedPolicy needs the env wrapped with the {DETECTOR!r} detector")
+        if not self.engaged and not status["alarm"]:
+            return self.nominal.act(obs, info)
+        self.engaged = True
+        if self._steps % self.action_repeat == 0:
+            self._action = to_motor_command(self.predict(recovery_features(obs, status, self.omega_max)))
+        self._steps += 1
+        return self._action
+
+    def predict(self, observation) -> np.ndarray:
+        """The model's deterministic action for one (unnormalised) observation."""
+        if self.normalizer is not None:
+            observation = self.normalizer.normalize_obs(observation)
+        action, _ = self.model.predict(observation, deterministic=True)
+        return np.asarray(action)
+
+
+def _algo_of(model_path: Path) -> str:
+    """The algorithm of a model saved without a manifest, from the zip's stored class name."""
+    import zipfile
+    with zipfile.ZipFile(model_path) as archive:
+        data = json.loads(archive.read("data"))
+    text = json.dumps(data.get("policy_class", ""))
+    return "SAC" if "sac" in text.lower() else "PPO"

@@ -1,0 +1,223 @@
+"""Training tasks: Gymnasium envs shaped for learning a recovery policy.
+
+`ftcgym/RotorLossRecovery-v0` (issue 7, task `rotor-loss-recovery`): a motor-level policy that takes over
+from the nominal controller at the `loe_kalman` alarm after a propeller loss.
+
+- Episode: `reset` builds `ftcgym/Quadrotor-v0` wrapped with the `loe_kalman` detector, flies the
+  nominal controller (`ftcgym.agents.make_policy("nominal", env)`) through the fault until the detector
+  alarms, and returns the first post-alarm observation: the agent only ever sees post-alarm steps. An
+  episode in which the vehicle crashes or the flight ends before any alarm is discarded and a new one
+  drawn. It is truncated `horizon_seconds` after the alarm and terminated on a crash.
+- Action: Box(-1, 1, (4,)) float32 motor commands, rescaled to the quadrotor's Box(0, 1):
+  u = (a + 1) / 2, held for `action_repeat` simulator steps (the detector updates on each).
+- Observation: Box(38,) float32 from `recovery_features`, only what a flight computer has (sensors,
+  the task's set-point and the detector's outputs; never `info["truth"]`).
+- Reward per agent step (the mean over the repeated simulator steps), from the quadrotor's reward
+  (`ftcgym/envs/quadrotor.py` docstring: r = 1 - 0.5 min(|p - p_ref|, 4) - 0.5 (1 - cos tilt)
+  - 0.05 mean(u^2), and -100 on a crash) with two changes:
+      r = 1 - 1.0 min(|h - h_ref|, 4) - 0.25 min(|p_ne - p_ne,ref|, 4) - 0.05 mean(u^2),  -100 on a crash.
+  Altitude is split from the horizontal error and weighted x2 (the benchmark's recovery criterion is
+  altitude within 0.5 m), the horizontal error x0.5 (a spinning vehicle drifts while it settles); the
+  tilt term is dropped, since the relaxed-hover equilibrium without one rotor keeps the body thrust
+  axis off the vertical and spins about it (001 App. B). Rewards are computed from the simulator's truth.
+- Domain randomisation (constructor keywords, drawn per episode from the env's seeded RNG):
+  `vehicle` (a name or a list of names), `wind` (a dict, or a list of dicts to draw from, or
+  {"mean_speed": [lo, hi], "turbulence": ...} for a random horizontal direction), `onset` ([lo, hi] s),
+  `failed_rotor` ("random", an index or a list of indices).
+"""
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from ftcgym.geometry import rotation_matrix
+
+DETECTOR = "loe_kalman"
+N_FEATURES = 38
+FEATURE_BOUND = 10.0
+RATE_SCALE = 10.0            # rad/s per unit (the gyro saturates at 34.9 rad/s = 3.5 units)
+POSITION_SCALE = 2.0         # m per unit
+VELOCITY_SCALE = 2.0         # m/s per unit
+VARIANCE_DECADES = 6.0       # log10 of the detector's variance ceiling (1e6)
+MAX_RESETS = 20              # draws of a pre-alarm flight before reset gives up
+CRASH_PENALTY = 100.0
+
+
+def recovery_features(obs: dict, status: dict, omega_max: float) -> np.ndarray:
+    """The flat observation of the recovery task (N_FEATURES float32) from a detector-wrapped quadrotor
+    observation and the detector's `info["fdd"]["loe_kalman"]` status. Also what `LearnedPolicy` feeds
+    the model in the benchmark, so training and evaluation see the same features.
+
+    gyro / 10 rad/s (3), rotation matrix FRD->NED row-major (9), position error / 2 m (3), velocity error
+    / 2 m/s (3), rotor speeds / omega_max (4), detector k_hat (4), log10 k_var / 6 (4), p_fail (4),
+    one-hot of the isolated rotor (4, zeros before an alarm). Clipped to +-10.
+    """
+    prefix = f"fdd/{DETECTOR}/"
+    isolated = np.zeros(4)
+    if status.get("alarm") and status.get("isolated") is not None:
+        isolated[int(status["isolated"])] = 1.0
+    features = np.concatenate((
+        np.asarray(obs["gyro"]) / RATE_SCALE,
+        rotation_matrix(obs["attitude"]).ravel(),
+        (np.asarray(obs["position"]) - obs["reference_position"]) / POSITION_SCALE,
+        (np.asarray(obs["velocity"]) - obs["reference_velocity"]) / VELOCITY_SCALE,
+        np.asarray(obs["rotor_speed"]) / omega_max,
+        obs[prefix + "k_hat"],
+        np.log10(np.asarray(obs[prefix + "k_var"]) + 1e-12) / VARIANCE_DECADES,
+        obs[prefix + "p_fail"],
+        isolated,
+    ))
+    return np.clip(features, -FEATURE_BOUND, FEATURE_BOUND).astype(np.float32)
+
+
+def to_motor_command(action) -> np.ndarray:
+    """The quadrotor's Box(0, 1) command of a Box(-1, 1) policy action."""
+    return (np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0) + 1.0) / 2.0
+
+
+def recovery_reward(info: dict, command: np.ndarray) -> float:
+    """The task's reward (module docstring) from the quadrotor's `info` after a step."""
+    if info["crashed"]:
+        return -CRASH_PENALTY
+    error = np.asarray(info["truth"]["position"]) - info["reference"]["position"]
+    horizontal = math.hypot(error[0], error[1])
+    return float(1.0 - 1.0 * min(abs(error[2]), 4.0) - 0.25 * min(horizontal, 4.0)
+                 - 0.05 * float(command @ command) / 4)
+
+
+class RotorLossRecoveryEnv(gym.Env):
+    """`ftcgym/RotorLossRecovery-v0`; see the module docstring.
+
+    Keywords: vehicle, wind, onset, failed_rotor (randomisation, module docstring); horizon_seconds (post-
+    alarm episode length, default 5); action_repeat (simulator steps per action, default 2); task (the
+    quadrotor's task, default "hover"); agent_hz (the quadrotor's control rate, default 500);
+    detector_kwargs (for `loe_kalman`); sensors (the quadrotor's sensor overrides).
+    """
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, vehicle="bebop2", wind=None, onset=(2.0, 5.0), failed_rotor="random",
+                 horizon_seconds: float = 5.0, action_repeat: int = 2, task="hover", agent_hz: float = 500.0,
+                 detector_kwargs: dict | None = None, sensors: dict | None = None):
+        self.vehicles = [vehicle] if isinstance(vehicle, str) else list(vehicle)
+        self.winds = wind if isinstance(wind, list) else [wind]
+        self.onset = _interval(onset, "onset")
+        self.failed_rotors = _rotors(failed_rotor)
+        if not (horizon_seconds > 0):
+            raise ValueError(f"horizon_seconds: must be > 0, got {horizon_seconds!r}")
+        if int(action_repeat) != action_repeat or action_repeat < 1:
+            raise ValueError(f"action_repeat: must be an integer >= 1, got {action_repeat!r}")
+        self.horizon_seconds, self.action_repeat = float(horizon_seconds), int(action_repeat)
+        self.task, self.agent_hz, self.sensors = task, float(agent_hz), sensors
+        self.detector_kwargs = dict(detector_kwargs or {})
+        self.observation_space = spaces.Box(-FEATURE_BOUND, FEATURE_BOUND, (N_FEATURES,), np.float32)
+        self.action_space = spaces.Box(-1.0, 1.0, (4,), np.float32)
+        self._envs: dict[str, gym.Env] = {}   # one simulator per vehicle, built on first use
+        self.env = None
+
+    # ------------------------------------------------------------------------------------ episodes
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        for _ in range(MAX_RESETS):
+            if self._fly_to_alarm():
+                return self._features(), self._task_info()
+        raise RuntimeError(f"RotorLossRecovery: no alarm in {MAX_RESETS} flights; check the detector settings")
+
+    def step(self, action):
+        action = np.asarray(action, dtype=np.float64)
+        if action.shape != (4,) or not np.all(np.isfinite(action)):
+            raise ValueError(f"action: must be 4 finite numbers, got {action!r}")
+        command = to_motor_command(action)
+        reward, info = 0.0, self._info
+        for _ in range(self.action_repeat):
+            self._obs, _, terminated, truncated, info = self.env.step(command)
+            self._info = info
+            reward += recovery_reward(info, command)
+            if terminated or truncated:
+                break
+        terminated = bool(info["crashed"])
+        truncated = not terminated and (truncated or info["time"] >= self._end_time - 1e-9)
+        return self._features(), reward / self.action_repeat, terminated, truncated, self._task_info()
+
+    def close(self):
+        for env in self._envs.values():
+            env.close()
+        self._envs.clear()
+
+    # ------------------------------------------------------------------------------------ internals
+    def _fly_to_alarm(self) -> bool:
+        """Draw an episode and fly the nominal controller until the alarm; False if none came."""
+        from ftcgym.agents import make_policy
+        from ftcgym.benchmark.runner import policy_view
+        from ftcgym.envs.wind import DrydenWind
+
+        rng = self.np_random
+        self.env = self._simulator(self.vehicles[rng.integers(len(self.vehicles))])
+        base = self.env.unwrapped
+        base.wind = DrydenWind.from_config(_draw_wind(self.winds[rng.integers(len(self.winds))], rng), base.dt)
+        rotor = int(rng.choice(self.failed_rotors))
+        onset = float(rng.uniform(*self.onset))
+        base.fault_specs = _rotor_loss_spec(rotor, onset)
+        obs, info = self.env.reset(seed=int(rng.integers(2**31)))
+        nominal = make_policy("nominal", self.env)
+        nominal.reset(obs, policy_view(info, nominal))
+        while not info["fdd"][DETECTOR]["alarm"]:
+            obs, _, terminated, truncated, info = self.env.step(nominal.act(obs, policy_view(info, nominal)))
+            if terminated or truncated:
+                return False
+        self._obs, self._info = obs, info
+        self._end_time = info["time"] + self.horizon_seconds
+        self._episode = {"vehicle": base.params.name,
+                         "failed_rotor": rotor, "onset_time": onset, "alarm_time": info["time"]}
+        return True
+
+    def _simulator(self, vehicle: str) -> gym.Env:
+        if vehicle not in self._envs:
+            from ftcgym.fdd import wrap_with_detector
+            env = gym.make("ftcgym/Quadrotor-v0", vehicle=vehicle, task=self.task, agent_hz=self.agent_hz,
+                           sensors=self.sensors, max_episode_seconds=self.onset[1] + 2.0 + self.horizon_seconds,
+                           faults=[{"kind": "rotor_loss", "target": 0, "time": self.onset[1]}])
+            self._envs[vehicle] = wrap_with_detector(DETECTOR, env.unwrapped, **self.detector_kwargs)
+        return self._envs[vehicle]
+
+    def _features(self) -> np.ndarray:
+        return recovery_features(self._obs, self._info["fdd"][DETECTOR], self.env.unwrapped.params.omega_max)
+
+    def _task_info(self) -> dict:
+        return {"time": self._info["time"], "crashed": self._info["crashed"], **self._episode,
+                "position_error": (np.asarray(self._info["truth"]["position"])
+                                   - self._info["reference"]["position"]).tolist()}
+
+
+def _rotor_loss_spec(rotor: int, onset: float):
+    """The simulator's fault schedule for this episode (parsed the way its constructor parses `faults`)."""
+    from ftcgym.envs.faults import parse_faults
+    from ftcgym.envs.quadrotor import SENSOR_KEYS
+    return parse_faults([{"kind": "rotor_loss", "target": rotor, "time": onset}], 4, SENSOR_KEYS)
+
+
+def _draw_wind(spec, rng) -> dict | None:
+    """A wind dict for DrydenWind.from_config; {"mean_speed": [lo, hi]} draws a horizontal mean wind."""
+    if not isinstance(spec, dict) or "mean_speed" not in spec:
+        return spec
+    low, high = _interval(spec["mean_speed"], "wind.mean_speed")
+    speed, heading = rng.uniform(low, high), rng.uniform(0.0, 2.0 * np.pi)
+    rest = {key: value for key, value in spec.items() if key != "mean_speed"}
+    return {**rest, "mean": [speed * math.cos(heading), speed * math.sin(heading), 0.0]}
+
+
+def _interval(value, name: str) -> tuple[float, float]:
+    low, high = (value, value) if np.isscalar(value) else value
+    if not (0 <= low <= high):
+        raise ValueError(f"{name}: expected a number or [lo, hi] with 0 <= lo <= hi, got {value!r}")
+    return float(low), float(high)
+
+
+def _rotors(value) -> list[int]:
+    rotors = list(range(4)) if value == "random" else ([value] if np.isscalar(value) else list(value))
+    if not rotors or any(int(r) != r or not 0 <= r < 4 for r in rotors):
+        raise ValueError(f"failed_rotor: expected 'random', a rotor index 0-3 or a list of them, got {value!r}")
+    return [int(r) for r in rotors]

@@ -1,0 +1,150 @@
+"""`train(config, out)`: one Stable-Baselines3 run of a task config.
+
+Builds `n_envs` copies of the config's env (SubprocVecEnv for more than one, DummyVecEnv for one, each in
+a Monitor), VecNormalize, the algorithm, and callbacks: checkpoints (with VecNormalize statistics), the
+benchmark-metric evaluation, a progress bar. TensorBoard logs go to OUT/tb when tensorboard is installed.
+Writes to OUT:
+
+    model.zip, vecnormalize.pkl     the final model and its observation/reward normalisation
+    manifest.json                   command, config, seed, steps, wall time, git commit, versions
+    checkpoints/                    model_<steps>_steps.zip, model_vecnormalize_<steps>_steps.pkl
+    best/model.zip, best/vecnormalize.pkl, evaluations.jsonl   when the config has an `eval` section
+    tb/                             TensorBoard event files
+"""
+from __future__ import annotations
+
+import functools
+import importlib.util
+import json
+import platform
+import subprocess
+import time
+from pathlib import Path
+
+import gymnasium as gym
+
+from ftcgym.training.config import TrainConfig
+from ftcgym.training.policy import MANIFEST_FILE, MODEL_FILE, NORMALIZER_FILE
+
+
+def algorithm_class(name: str):
+    """The SB3 class of an algorithm name (PPO, SAC)."""
+    import stable_baselines3
+    try:
+        return {"PPO": stable_baselines3.PPO, "SAC": stable_baselines3.SAC}[name.upper()]
+    except KeyError:
+        raise ValueError(f"algo: {name!r}; accepted: ['PPO', 'SAC']") from None
+
+
+def make_env(env_id: str, env_kwargs: dict, wrappers: list) -> gym.Env:
+    """One training env: `gym.make(env_id, **env_kwargs)` wrapped with the named detectors and a Monitor.
+    Module-level (with `import ftcgym` at the top of the package), so SubprocVecEnv workers can build it."""
+    from stable_baselines3.common.monitor import Monitor
+
+    import ftcgym  # noqa: F401  (registers the ids in a worker process)
+    from ftcgym.fdd import wrap_with_detector
+
+    env = gym.make(env_id, **env_kwargs)
+    for name in wrappers:
+        env = wrap_with_detector(name, env)
+    return Monitor(env)
+
+
+def build_vec_env(config: TrainConfig):
+    """The config's vectorised (and, if asked, normalised) training env, seeded with config.seed."""
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
+
+    factory = functools.partial(make_env, config.env_id, config.env_kwargs, config.wrappers)
+    vec_cls = SubprocVecEnv if config.n_envs > 1 else DummyVecEnv
+    venv = vec_cls([factory] * config.n_envs)
+    venv.seed(config.seed)
+    if config.normalize:
+        gamma = config.hyperparams.get("gamma", 0.99)
+        venv = VecNormalize(venv, gamma=gamma, **config.normalize)
+    return venv
+
+
+def train(config: TrainConfig, out: str | Path, progress: bool = True, command: str | None = None,
+          verbose: int = 0) -> dict:
+    """Run `config`, write the outputs listed in the module docstring to `out`; returns the manifest."""
+    from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback
+
+    from ftcgym.training.callbacks import BenchmarkEvalCallback, TqdmProgressCallback
+
+    import torch
+
+    # Small MLPs update fastest on one thread; more threads contend with the env workers (and, on a
+    # shared 2-core machine, slowed PPO's update by ~10x).
+    torch.set_num_threads(config.torch_threads)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    venv = build_vec_env(config)
+    tensorboard = importlib.util.find_spec("tensorboard") is not None
+    if not tensorboard:
+        print("ftcgym train: tensorboard is not installed; no TensorBoard logs (pip install tensorboard)")
+    model = algorithm_class(config.algo)(
+        config.policy, venv, seed=config.seed, policy_kwargs=config.policy_kwargs or None,
+        tensorboard_log=str(out / "tb") if tensorboard else None, device="cpu", verbose=verbose,
+        **config.hyperparams)
+    callbacks = [CheckpointCallback(max(config.checkpoint_freq // config.n_envs, 1), str(out / "checkpoints"),
+                                    name_prefix="model", save_vecnormalize=bool(config.normalize))]
+    if config.eval:
+        callbacks.append(BenchmarkEvalCallback(
+            int(config.eval.get("freq", 50_000)), config.eval.get("scenario", "quad-rotor-loss-hover"),
+            int(config.eval.get("episodes", 4)), int(config.eval.get("seed", 1000)),
+            config.eval.get("env_kwargs"), config.env_id, config.env_kwargs, out / "best",
+            out / "evaluations.jsonl", verbose=1 if progress or verbose else 0))
+    sb3_bar = progress and all(importlib.util.find_spec(m) for m in ("tqdm", "rich"))
+    if progress and not sb3_bar:
+        callbacks.append(TqdmProgressCallback(config.total_steps))
+    started = time.perf_counter()
+    model.learn(config.total_steps, callback=CallbackList(callbacks), progress_bar=sb3_bar,
+                tb_log_name=config.algo)
+    wall_time = time.perf_counter() - started
+    model.save(out / MODEL_FILE)
+    if config.normalize:
+        venv.save(str(out / NORMALIZER_FILE))
+    venv.close()
+    manifest = _manifest(config, model, wall_time, command)
+    (out / MANIFEST_FILE).write_text(json.dumps(manifest, indent=2) + "\n")
+    return manifest
+
+
+def _manifest(config: TrainConfig, model, wall_time: float, command: str | None) -> dict:
+    from importlib import metadata
+
+    def version(name):
+        try:
+            return metadata.version(name)
+        except metadata.PackageNotFoundError:
+            return None
+    return {
+        "command": command,
+        "task": config.task,
+        "config": config.as_dict(),
+        "seed": config.seed,
+        "algo": config.algo,
+        "n_envs": config.n_envs,
+        "total_steps": config.total_steps,
+        "steps": int(model.num_timesteps),
+        "wall_time_s": wall_time,
+        "steps_per_s": model.num_timesteps / wall_time if wall_time > 0 else None,
+        "git_commit": git_commit(),
+        "ftcgym_version": version("ftcgym"),
+        "versions": {name: version(name) for name in ("stable-baselines3", "torch", "gymnasium", "pybullet")},
+        "python": platform.python_version(),
+        "files": {"model": MODEL_FILE, "vecnormalize": NORMALIZER_FILE if config.normalize else None},
+    }
+
+
+def git_commit() -> str | None:
+    """The checkout's HEAD commit, with "-dirty" if tracked files differ; None outside a git checkout."""
+    here = Path(__file__).resolve().parent
+    try:
+        commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True,
+                                timeout=10, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=here,
+                               capture_output=True, text=True, timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return commit + ("-dirty" if dirty else "")

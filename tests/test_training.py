@@ -1,0 +1,167 @@
+"""The training pipeline (issue 7): configs, the rotor-loss-recovery task env, a short `ftcgym train` run
+(model, VecNormalize statistics, checkpoints, benchmark evaluations, manifest), `LearnedPolicy` and
+`ftcgym evaluate`. Kept short: a few thousand steps in all."""
+import json
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import yaml
+
+import ftcgym  # noqa: F401
+from ftcgym.cli import main
+from ftcgym.training.config import builtin_tasks, load_config
+from ftcgym.training.tasks import N_FEATURES, RotorLossRecoveryEnv
+
+pytest.importorskip("stable_baselines3")
+
+FAST_TASK = {"onset": [0.5, 1.0], "horizon_seconds": 1.0, "action_repeat": 2}
+SHORT_EVAL = {"max_episode_seconds": 3.0, "faults": [{"kind": "rotor_loss", "target": 1, "time": 1.0}]}
+
+
+def _config(tmp_path, n_envs=1, steps=1024):
+    """A copy of the built-in config, shrunk to seconds of training."""
+    document = yaml.safe_load(open(load_config("rotor-loss-recovery").source))
+    body = document["rotor-loss-recovery"]
+    body["env_kwargs"].update(FAST_TASK)
+    body["checkpoint_freq"] = 512
+    body["eval"] = {"scenario": "quad-rotor-loss-hover", "episodes": 1, "freq": 512, "env_kwargs": SHORT_EVAL}
+    body["PPO"].update(n_envs=n_envs, n_timesteps=steps, n_steps=256, batch_size=64, n_epochs=2,
+                       policy_kwargs={"net_arch": [32, 32]})
+    path = tmp_path / "fast.yaml"
+    path.write_text(yaml.safe_dump(document))
+    return path
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    tmp_path = tmp_path_factory.mktemp("train")
+    out = tmp_path / "run"
+    assert main(["train", "--config", str(_config(tmp_path)), "--seed", "3", "--out", str(out),
+                 "--no-progress"]) == 0
+    return out
+
+
+def test_builtin_config_and_overrides():
+    assert "rotor-loss-recovery" in builtin_tasks()
+    ppo = load_config("rotor-loss-recovery")
+    assert (ppo.algo, ppo.env_id, ppo.policy) == ("PPO", "ftcgym/RotorLossRecovery-v0", "MlpPolicy")
+    assert ppo.hyperparams["n_steps"] == 1024 and "n_envs" not in ppo.hyperparams
+    sac = load_config("rotor-loss-recovery", algo="sac", n_envs=1, total_steps=10, seed=7)
+    assert (sac.algo, sac.n_envs, sac.total_steps, sac.seed) == ("SAC", 1, 10, 7)
+    assert "buffer_size" in sac.hyperparams and "n_steps" not in sac.hyperparams
+    with pytest.raises(ValueError, match="built-in"):
+        load_config("no-such-task")
+
+
+def test_task_env_passes_checkers_and_starts_at_the_alarm():
+    from gymnasium.utils.env_checker import check_env
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+    env = gym.make("ftcgym/RotorLossRecovery-v0", **FAST_TASK)
+    check_env(env.unwrapped, skip_render_check=True)
+    sb3_check_env(env.unwrapped, warn=True)
+    assert env.observation_space.shape == (N_FEATURES,) and env.action_space.low.min() == -1.0
+    for seed in range(3):
+        obs, info = env.reset(seed=seed)
+        again, _ = env.reset(seed=seed)
+        np.testing.assert_array_equal(obs, again)                 # seeded reset is reproducible
+        assert info["alarm_time"] >= info["onset_time"]           # the agent only sees post-alarm steps
+        assert 0.02 < info["alarm_time"] - info["onset_time"] < 0.2
+        assert obs[-4:].tolist() == np.eye(4)[info["failed_rotor"]].tolist()  # one-hot of the isolated rotor
+    env.close()
+
+
+def test_task_env_rewards_holding_altitude_and_ends_on_horizon_or_crash():
+    env = RotorLossRecoveryEnv(failed_rotor=2, **FAST_TASK)
+    obs, info = env.reset(seed=0)
+    rewards, steps = [], 0
+    while True:
+        obs, reward, terminated, truncated, info = env.step(np.ones(4))  # full thrust: climbs away
+        rewards.append(reward)
+        steps += 1
+        if terminated or truncated:
+            break
+    assert info["failed_rotor"] == 2
+    # Climbing at full thrust leaves the altitude set-point: the reward falls below the alive bonus.
+    assert rewards[0] > rewards[-1] and rewards[-1] < 0.5
+    assert terminated or steps == pytest.approx(FAST_TASK["horizon_seconds"] * 500 / 2, abs=1)
+    with pytest.raises(ValueError):
+        env.step(np.array([np.nan, 0, 0, 0]))
+    env.close()
+
+
+def test_train_writes_model_statistics_checkpoints_evaluations_and_manifest(trained):
+    manifest = json.loads((trained / "manifest.json").read_text())
+    assert manifest["steps"] >= 1024 and manifest["total_steps"] == 1024
+    assert (manifest["seed"], manifest["algo"], manifest["n_envs"]) == (3, "PPO", 1)
+    assert manifest["command"].startswith("ftcgym train --config") and manifest["wall_time_s"] > 0
+    assert manifest["config"]["env_kwargs"]["horizon_seconds"] == 1.0
+    assert manifest["git_commit"] is None or len(manifest["git_commit"]) >= 40
+    assert manifest["ftcgym_version"]
+    from ftcgym.training.policy import load_normalizer
+    normalizer = load_normalizer(trained / "vecnormalize.pkl")
+    assert normalizer.obs_rms.mean.shape == (N_FEATURES,) and normalizer.obs_rms.count > 1000
+    assert sorted(p.name for p in (trained / "checkpoints").iterdir())[:2] == [
+        "model_1024_steps.zip", "model_512_steps.zip"]
+    evaluations = [json.loads(line) for line in (trained / "evaluations.jsonl").read_text().splitlines()]
+    assert [e["timesteps"] for e in evaluations] == [512, 1024]
+    for evaluation in evaluations:
+        assert evaluation["episodes"] == 1 and evaluation["success_rate"] in (0.0, 1.0)
+        assert evaluation["crash_rate"] in (0.0, 1.0) and evaluation["isolation_accuracy"] == 1.0
+    assert (trained / "best" / "model.zip").is_file() and (trained / "best" / "vecnormalize.pkl").is_file()
+
+
+def test_learned_policy_loads_and_acts_deterministically(trained):
+    from ftcgym.agents import make_policy
+    from ftcgym.benchmark.runner import make_env
+    from ftcgym.benchmark.scenarios import get_scenario
+    from ftcgym.training.policy import LearnedPolicy
+
+    env = make_env(get_scenario("quad-rotor-loss-hover"), SHORT_EVAL)
+    obs, info = env.reset(seed=0)
+    first, second = LearnedPolicy.load(trained, env), LearnedPolicy.load(trained / "model.zip", env)
+    features = np.random.default_rng(0).uniform(-1, 1, (5, N_FEATURES)).astype(np.float32)
+    actions = np.array([first.predict(f) for f in features])
+    np.testing.assert_array_equal(actions, [first.predict(f) for f in features])
+    np.testing.assert_array_equal(actions, [second.predict(f) for f in features])
+    assert actions.shape == (5, 4) and np.all(np.abs(actions) <= 1)
+    assert len({tuple(a) for a in actions}) > 1                    # it reads its input
+    # Before the alarm the nominal controller flies; after it the model, as motor commands in [0, 1].
+    view = {"time": 0.0, "fdd": {"loe_kalman": {"alarm": False, "isolated": None}}}
+    first.reset(obs, view)
+    nominal = make_policy("nominal", env)          # stateful (integrators): a fresh one to compare with
+    nominal.reset(obs, view)
+    np.testing.assert_array_equal(first.act(obs, view), nominal.act(obs, view))
+    alarmed = {"time": 0.002, "fdd": {"loe_kalman": {"alarm": True, "isolated": 1}}}
+    command = first.act(obs, alarmed)
+    assert first.engaged and np.all((command >= 0) & (command <= 1))
+    np.testing.assert_array_equal(command, first.act(obs, alarmed))   # held for action_repeat = 2
+    checkpoint = LearnedPolicy.load(trained / "checkpoints" / "model_1024_steps.zip", env)
+    # A checkpoint loads with its own statistics (saved before the run's last PPO update).
+    assert checkpoint.normalizer.obs_rms.count <= first.normalizer.obs_rms.count
+    assert np.all(np.abs(checkpoint.predict(features[0])) <= 1)
+    env.close()
+
+
+def test_evaluate_prints_the_benchmark_summary(trained, capsys):
+    assert main(["evaluate", str(trained), "--episodes", "1", "--seed", "5",
+                 "--env-kwargs", json.dumps(SHORT_EVAL)]) == 0
+    out = capsys.readouterr().out
+    header, _, row = out.splitlines()[:3]
+    assert header.split()[:3] == ["scenario", "policy", "n"]
+    assert row.split()[:3] == ["quad-rotor-loss-hover", "learned", "1"]
+    assert row.split()[-2] in ("0", "1") and "1 episodes in" in out
+
+
+def test_train_with_two_subprocess_envs(tmp_path):
+    out = tmp_path / "run2"
+    config = _config(tmp_path, n_envs=2, steps=512)
+    text = yaml.safe_load(config.read_text())
+    text["rotor-loss-recovery"]["eval"] = None
+    config.write_text(yaml.safe_dump(text))
+    assert main(["train", "--config", str(config), "--out", str(out), "--no-progress"]) == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["n_envs"] == 2 and manifest["steps"] >= 512
+    assert (out / "model.zip").is_file() and (out / "vecnormalize.pkl").is_file()
+    assert not (out / "evaluations.jsonl").exists()
