@@ -1,7 +1,8 @@
 """Controllers and policies with the interface of DESIGN.md: `reset(obs, info)`, `act(obs, info)`."""
 from __future__ import annotations
 
-from .airspeed_policies import AutopilotPolicy, OracleAirspeedPolicy, PitotOnlyPolicy
+from .airspeed_policies import (AirspeedSwitchPolicy, AutopilotPolicy, OracleAirspeedPolicy, PitotOnlyPolicy,
+                                SyntheticOnlyPolicy)
 from .base import Policy
 from .quadrotor_control import ControllerGains, NominalController, allocation_matrix
 from .relaxed_hover import relaxed_hover_equilibrium
@@ -16,8 +17,11 @@ POLICY_DESCRIPTIONS = {
     "autopilot": "quad-plane mission autopilot on QuadPlane-v0's actuators, scheduled on the pitot reading",
     "pitot-only": "QuadPlaneAutopilot-v0: feeds the autopilot the pitot reading, faulty or not",
     "oracle-airspeed": "QuadPlaneAutopilot-v0 upper bound: feeds the true airspeed (benchmark oracle info)",
+    "airspeed-switch": "QuadPlaneAutopilot-v0: the pitot reading until the airdata_ekf pitot alarm, then the EKF "
+                       "airspeed; needs the airdata_ekf detector",
+    "synthetic-only": "QuadPlaneAutopilot-v0: always the airdata_ekf EKF airspeed; needs the airdata_ekf detector",
 }
-QUADPLANE_POLICIES = ("autopilot", "pitot-only", "oracle-airspeed")
+QUADPLANE_POLICIES = ("autopilot", "pitot-only", "oracle-airspeed", "airspeed-switch", "synthetic-only")
 POLICY_NAMES = tuple(POLICY_DESCRIPTIONS)
 
 
@@ -38,15 +42,17 @@ def make_policy(name: str, env) -> Policy:
 
 def _quadplane_policy(name: str, base) -> Policy:
     autopilot_env = hasattr(base, "autopilot")          # QuadPlaneAutopilot-v0: the action is an airspeed
-    wanted = {"autopilot": False, "pitot-only": True, "oracle-airspeed": True}.get(name)
+    airspeed = {"pitot-only": PitotOnlyPolicy, "oracle-airspeed": OracleAirspeedPolicy,
+                "airspeed-switch": AirspeedSwitchPolicy, "synthetic-only": SyntheticOnlyPolicy}
+    wanted = False if name == "autopilot" else (True if name in airspeed else None)
     if wanted is None or wanted != autopilot_env:
-        accepted = ["pitot-only", "oracle-airspeed"] if autopilot_env else ["autopilot"]
+        accepted = list(airspeed) if autopilot_env else ["autopilot"]
         raise ValueError(f"policy: {name!r} does not fly {type(base).__name__}; accepted: {accepted}")
     if name == "autopilot":
         return AutopilotPolicy(base.params, base.agent_hz, base.task)
-    return PitotOnlyPolicy() if name == "pitot-only" else OracleAirspeedPolicy()
+    return airspeed[name]()
 
 
-__all__ = ["AutopilotPolicy", "OracleAirspeedPolicy", "PitotOnlyPolicy", "ControllerGains", "NominalController", "OracleSpinPolicy", "POLICY_DESCRIPTIONS", "POLICY_NAMES", "Policy",
+__all__ = ["AirspeedSwitchPolicy", "SyntheticOnlyPolicy", "AutopilotPolicy", "OracleAirspeedPolicy", "PitotOnlyPolicy", "ControllerGains", "NominalController", "OracleSpinPolicy", "POLICY_DESCRIPTIONS", "POLICY_NAMES", "Policy",
            "SpinAfterAlarmPolicy", "SpinRecoveryController", "SpinRecoveryGains", "allocation_matrix", "make_policy",
            "relaxed_hover_equilibrium"]

@@ -17,6 +17,46 @@ class PitotOnlyPolicy:
         return np.array([obs["pitot_airspeed"][0]], dtype=np.float32)
 
 
+class AirspeedSwitchPolicy:
+    """`airspeed-switch`: feeds the pitot reading until the `airdata_ekf` detector's pitot alarm (001 Sec. 6.1),
+    then the EKF's synthetic airspeed (`obs["fdd/airdata_ekf/airspeed"]`) for good (001 Sec. 7.2.1: "switch to
+    the synthetic airspeed estimation"). The env must be wrapped with the `airdata_ekf` detector."""
+
+    detector = "airdata_ekf"
+
+    def __init__(self):
+        self.switched_at = None
+
+    def reset(self, obs: dict, info: dict) -> None:
+        self.switched_at = None
+
+    def _status(self, info: dict) -> dict:
+        status = info.get("fdd", {}).get(self.detector)
+        if status is None:
+            raise ValueError(f"{type(self).__name__}: needs the env wrapped with the {self.detector!r} detector "
+                             f"(e.g. `ftcgym bench --detector {self.detector}`)")
+        return status
+
+    def _synthetic(self, obs: dict) -> np.ndarray:
+        return np.array([obs[f"fdd/{self.detector}/airspeed"][0]], dtype=np.float32)
+
+    def act(self, obs: dict, info: dict) -> np.ndarray:
+        status = self._status(info)
+        if self.switched_at is None and status["alarm"]:
+            self.switched_at = status.get("alarm_time", info.get("time"))
+        if self.switched_at is None:
+            return np.array([obs["pitot_airspeed"][0]], dtype=np.float32)
+        return self._synthetic(obs)
+
+
+class SyntheticOnlyPolicy(AirspeedSwitchPolicy):
+    """`synthetic-only`: always feeds the EKF's synthetic airspeed, never the pitot (needs `airdata_ekf`)."""
+
+    def act(self, obs: dict, info: dict) -> np.ndarray:
+        self._status(info)
+        return self._synthetic(obs)
+
+
 class OracleAirspeedPolicy:
     """`oracle-airspeed`: feeds the true airspeed, an upper bound rather than a flyable policy; the benchmark
     hands it `info["oracle_airspeed"]` (`uses_true_airspeed`)."""

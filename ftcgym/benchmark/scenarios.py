@@ -164,12 +164,25 @@ register(Scenario(
     description="Quad-plane mission, fault-free, 5 m/s mean wind and light turbulence.",
     default=True,
 ))
+# Pitot faults (issue 6): scored on the airdata_ekf pitot alarm (001 Sec. 6.1); airspeed-switch flies on it.
+PITOT_FAULT_POLICIES = ("pitot-only", "airspeed-switch", "oracle-airspeed")
 register(Scenario(
     name="qp-pitot-abrupt",
     env_id=QUADPLANE_AUTOPILOT,
     env_kwargs={**_QP_MISSION, "faults": [{"kind": "pitot_blockage", "target": "zero", "time": 45.0}]},
-    policies=AIRSPEED_POLICIES,
+    policies=PITOT_FAULT_POLICIES,
     episodes=2,
+    detector="airdata_ekf",
     description="Quad-plane mission; the pitot reads zero from 45 s, in forward flight (001 Sec. 7.2.1).",
     default=True,
+))
+register(Scenario(
+    name="qp-pitot-incipient",
+    env_id=QUADPLANE_AUTOPILOT,
+    env_kwargs={**_QP_MISSION, "faults": [{"kind": "pitot_blockage", "rate": 2.5, "time": 45.0}]},
+    policies=PITOT_FAULT_POLICIES,
+    episodes=2,
+    detector="airdata_ekf",
+    description="Quad-plane mission; from 45 s the pitot reading drifts down at 2.5 m/s^2 (water blockage, "
+                "001 Sec. 7.2.2).",
 ))

@@ -18,6 +18,19 @@ TU Delft 2023 (seed 001). Pipeline per sample:
    Initial state 0, P0 = I except the wind states, which start at their Q (Sec. 5.3).
 3. The filter starts once airborne (Sec. 5.3): when the height above the first position reading passes
    `takeoff_height`.
+4. Pitot fault detection (Sec. 6.1, Table 2; `pitot_detection.PitotResidualDetector`): at each EKF step the
+   residual r = pitot reading - EKF airspeed is low-passed at 5 Hz and thresholded by the norm criterion
+   (5.5 m/s for 0.25 s) and the derivative criterion (25 m/s^2 for 0.12 s); on either the alarm latches with
+   `isolated` = "pitot". The criteria are armed only `detection_delay` s (default: the 20 s wind-boost
+   window of Sec. 5.4) after the filter starts: until then the wind estimate is still converging and the
+   residual can reach the thresholds in a healthy flight (001 Sec. 6.1 notes exactly this start-of-flight
+   transient, and why its norm threshold is high; it chose a high threshold, we also gate, so a pitot fault
+   in the first 20 s is flagged only at the end of the window).
+   Departure: by default (`pitot_reference="forward"`) the residual compares the pitot with the EKF's air
+   velocity along the pitot, max(u, 0), not with |V|: the simulated pitot reads forward flow only
+   (`envs/sensors.py`), so in hover with the tail or side to a 5 m/s wind it reads ~0 while |V| ~ 5-6 m/s,
+   and r = pitot - |V| crossed the 5.5 m/s norm threshold on a fault-free mission (seed 1000, hover before
+   landing: false alarm at 98.7 s). In forward flight u ~ |V| and the two agree. `"airspeed"` gives 001's r.
 
 The force model (`ComponentForceModel`) is 001's (eq. 6-30: fuselage, hover rotors, wing, pusher; control
 surfaces and tail neglected as 001 Sec. 4 does), written in the same generalised forms as the simulator's
@@ -41,6 +54,8 @@ import math
 
 import numpy as np
 from scipy import signal
+
+from .pitot_detection import TABLE_2_DERIVATIVE, TABLE_2_NORM, PitotResidualDetector
 
 GRAVITY = 9.81
 TWO_PI = 2.0 * math.pi
@@ -211,8 +226,8 @@ def ekf_step(x, P, dt, inputs, z, h, H, Q, R):
 
 
 class AirdataEkfDetector:
-    """001's synthetic air data EKF; outputs airspeed and wind. The pitot fault alarm is not implemented yet
-    (always False).
+    """001's synthetic air data EKF; outputs airspeed, wind and the filtered pitot residual, and raises the
+    pitot fault alarm of Sec. 6.1 (`status()["alarm"]`, `isolated` = "pitot").
 
     Readings (QuadPlane-v0 keys): accel (specific force, FRD), gyro, attitude (x y z w, FRD -> NED),
     gnss_velocity (NED), position (NED, for the take-off gate), skew (rad), hover_rotor_speed (4, rad/s),
@@ -221,17 +236,24 @@ class AirdataEkfDetector:
     Parameters: params (the vehicle parameter set, read by attribute), sample_hz (rate of `update` calls),
     ekf_hz (25), prefilter_hz (5), Q_accel, Q_gyro, Q_wind, R (Table 1), wind_boost (x100) for
     wind_boost_seconds (20 s) after the start, takeoff_height (m above the first position reading),
-    coefficient_error, error_seed (see ComponentForceModel), velocity_key (GNSS velocity reading).
+    coefficient_error, error_seed (see ComponentForceModel), velocity_key (GNSS velocity reading);
+    pitot detection: pitot_key (reading; absent from the readings: no detection), norm_criterion and
+    derivative_criterion ((threshold, time s, cutoff Hz), Table 2), detection_delay (s after the start before
+    the criteria are armed; None: wind_boost_seconds), pitot_reference ("airspeed": the EKF airspeed |V|, as
+    001; "forward": max(u, 0), the air velocity along the pitot).
     """
 
     name = "airdata_ekf"
-    output_fields = {"airspeed": (0.0, 200.0, (1,)), "wind": (-100.0, 100.0, (3,))}
+    output_fields = {"airspeed": (0.0, 200.0, (1,)), "wind": (-100.0, 100.0, (3,)),
+                     "pitot_residual": (-200.0, 200.0, (1,))}
 
     def __init__(self, params, sample_hz: float, ekf_hz: float = EKF_HZ, prefilter_hz: float = PREFILTER_CUTOFF_HZ,
                  Q_accel=TABLE_1_Q["accel"], Q_gyro=TABLE_1_Q["gyro"], Q_wind=TABLE_1_Q["wind"], R=TABLE_1_R,
                  wind_boost: float = WIND_BOOST, wind_boost_seconds: float = WIND_BOOST_SECONDS,
                  takeoff_height: float = 1.0, coefficient_error: float = 0.10, error_seed: int | None = None,
-                 velocity_key: str = "gnss_velocity"):
+                 velocity_key: str = "gnss_velocity", pitot_key: str = "pitot_airspeed",
+                 norm_criterion=TABLE_2_NORM, derivative_criterion=TABLE_2_DERIVATIVE,
+                 detection_delay: float | None = None, pitot_reference: str = "forward"):
         if not (math.isfinite(sample_hz) and sample_hz > 0 and 0 < ekf_hz <= sample_hz):
             raise ValueError(f"sample_hz {sample_hz!r} and ekf_hz {ekf_hz!r}: need 0 < ekf_hz <= sample_hz")
         self.model = ComponentForceModel(params, coefficient_error, error_seed)
@@ -241,6 +263,11 @@ class AirdataEkfDetector:
         self.wind_boost, self.wind_boost_seconds = float(wind_boost), float(wind_boost_seconds)
         self.takeoff_height, self.velocity_key = float(takeoff_height), velocity_key
         self._ba = butterworth_prefilter(sample_hz, prefilter_hz)
+        if pitot_reference not in ("airspeed", "forward"):
+            raise ValueError(f"pitot_reference: {pitot_reference!r}; accepted: ['airspeed', 'forward']")
+        self.pitot_key, self.pitot_reference = pitot_key, pitot_reference
+        self.detection_delay = self.wind_boost_seconds if detection_delay is None else float(detection_delay)
+        self.pitot_detector = PitotResidualDetector(ekf_hz, norm_criterion, derivative_criterion)
         self.reset()
 
     def reset(self) -> None:
@@ -251,6 +278,8 @@ class AirdataEkfDetector:
         self._ground_z, self._last_q = None, None
         self._filter = _Lowpass(*self._ba)
         self._filtered = None
+        self._pitot, self._armed = None, False
+        self.pitot_detector.reset()
 
     def update(self, readings: dict, time: float, command=None) -> None:
         q = np.asarray(readings["attitude"], dtype=float)
@@ -262,6 +291,8 @@ class AirdataEkfDetector:
         if not np.all(np.isfinite(sample)):
             raise ValueError(f"airdata_ekf: a reading is not finite at t = {time}: {sample.tolist()}")
         self._filtered = self._filter(sample)                  # Sec. 5: inputs and measurements alike
+        if self.pitot_key in readings:
+            self._pitot = float(np.asarray(readings[self.pitot_key]).reshape(-1)[0])
         z_pos = float(readings["position"][2])
         if self._ground_z is None:
             self._ground_z = z_pos
@@ -299,16 +330,25 @@ class AirdataEkfDetector:
 
         z = np.concatenate([v_gnd, a])
         self.x, self.P, self.innovation, _ = ekf_step(self.x, self.P, self.dt, (a, omega, Rot), z, h, H, Q, R)
+        if self._pitot is not None:                          # Sec. 6.1: r = pitot - EKF airspeed
+            reference = self.airspeed if self.pitot_reference == "airspeed" else max(float(self.x[0]), 0.0)
+            self._armed = time - self.start_time >= self.detection_delay - 1e-9
+            self.pitot_detector.update(self._pitot - reference, time, self._armed)
 
     @property
     def airspeed(self) -> float:
         return float(np.linalg.norm(self.x[:3]))
 
     def outputs(self) -> dict:
-        return {"airspeed": np.array([min(self.airspeed, 200.0)]), "wind": np.clip(self.x[3:], -100.0, 100.0)}
+        return {"airspeed": np.array([min(self.airspeed, 200.0)]), "wind": np.clip(self.x[3:], -100.0, 100.0),
+                "pitot_residual": np.clip([self.pitot_detector.residual], -200.0, 200.0)}
 
     def status(self) -> dict:
-        return {"alarm": False, "alarm_time": None, "isolated": None, "started": self.started,
+        d = self.pitot_detector
+        return {"alarm": d.alarm, "alarm_time": d.alarm_time, "isolated": "pitot" if d.alarm else None,
+                "criterion": d.criterion, "pitot_residual": float(d.residual),
+                "pitot_residual_derivative": float(d.derivative),
+                "detection_armed": self._armed, "started": self.started,
                 "start_time": self.start_time, "airspeed": self.airspeed, "wind": self.x[3:].tolist(),
                 "air_velocity_body": self.x[:3].tolist(), "innovation": self.innovation.tolist()}
 

@@ -1,0 +1,108 @@
+"""Pitot fault detection (001 Sec. 6.1, Table 2) on synthetic residual sequences, and the airspeed-switch policy."""
+import numpy as np
+import pytest
+
+from ftcgym.agents import make_policy
+from ftcgym.agents.airspeed_policies import AirspeedSwitchPolicy, SyntheticOnlyPolicy
+from ftcgym.fdd.pitot_detection import TABLE_2_DERIVATIVE, TABLE_2_NORM, PitotResidualDetector, ThresholdCriterion
+
+HZ = 25.0
+
+
+def run(residuals, armed=True, detector=None):
+    detector = detector or PitotResidualDetector(HZ)
+    for k, r in enumerate(residuals):
+        detector.update(r, k / HZ, armed)
+    return detector
+
+
+def test_table_2_values_and_sequence_lengths():
+    assert TABLE_2_NORM == (5.5, 0.25, 5.0) and TABLE_2_DERIVATIVE == (25.0, 0.12, 5.0)
+    d = PitotResidualDetector(HZ)
+    assert d.norm.samples == 7 and d.deriv.samples == 3          # ceil(f_EKF T), eq. (40)
+    c = ThresholdCriterion(1.0, 0.12, HZ)
+    assert [c(v) for v in (2, 2, 0.5, 2, 2, 2)] == [False, False, False, False, False, True]   # consecutive only
+
+
+def test_residual_filter_is_unit_gain_lowpass():
+    d = run(np.full(50, 3.0))                                     # starts at steady state: no transient
+    assert d.residual == pytest.approx(3.0) and d.derivative == pytest.approx(0.0, abs=1e-9)
+    t = np.arange(200) / HZ
+    fast = run(4.0 * np.sin(2 * np.pi * 10.0 * t))                # 10 Hz, above the 5 Hz cutoff: attenuated
+    assert abs(fast.residual) < 2.0
+
+
+def test_step_below_the_derivative_threshold_alarms_by_norm_after_table_2_time():
+    """A 6 m/s step ramped over 1 s (6 m/s^2 < 25) alarms by the norm criterion, >= 0.25 s after |r_f| > 5.5."""
+    r = np.concatenate([np.zeros(25), np.linspace(0, -6.0, 26), np.full(50, -6.0)])
+    d, crossed = PitotResidualDetector(HZ), None
+    for k, v in enumerate(r):
+        d.update(v, k / HZ)
+        if crossed is None and abs(d.residual) >= 5.5:
+            crossed = k / HZ
+        if d.alarm:
+            break
+    assert d.alarm and d.criterion == "norm"
+    assert d.alarm_time - crossed == pytest.approx(6 / HZ)      # 7th consecutive sample: 0.24 s later (>= 0.25 s held)
+
+
+def test_abrupt_step_alarms_by_derivative_fast():
+    """The pitot reading falls to zero from 18 m/s: the derivative criterion fires within ~0.2 s (001: 0.16 s)."""
+    r = np.concatenate([np.zeros(25), np.full(25, -18.0)])
+    d = run(r)
+    assert d.alarm and d.criterion == "derivative"
+    assert d.alarm_time - 1.0 == pytest.approx(2 / HZ)           # 3rd consecutive sample above (eq. 40: f T = 3)
+
+
+def test_ramp_alarms_by_norm():
+    """001 Sec. 7.2.2: -2.5 m/s^2 ramp: |r| passes 5.5 m/s at 2.2 s, alarm ~0.3 s later (001: 2.5 s)."""
+    t = np.arange(200) / HZ
+    d = run(np.where(t < 1.0, 0.0, -2.5 * (t - 1.0)))
+    assert d.alarm and d.criterion in ("norm", "derivative")
+    assert 2.2 < d.alarm_time - 1.0 < 2.8
+
+
+def test_noise_below_thresholds_does_not_alarm():
+    rng = np.random.default_rng(0)
+    d = run(1.0 + rng.normal(0.0, 0.5, 25 * 600))                # 10 min of 0.5 m/s noise on a 1 m/s bias
+    assert not d.alarm and d.alarm_time is None
+
+
+def test_criteria_only_count_while_armed():
+    d = run(np.full(50, -18.0), armed=False)
+    assert not d.alarm
+    run(np.full(7, -18.0), detector=d)                            # armed: the norm criterion needs 7 samples
+    assert d.alarm and d.criterion == "norm"
+
+
+def obs_info(pitot, synthetic, alarm):
+    obs = {"pitot_airspeed": np.array([pitot]), "fdd/airdata_ekf/airspeed": np.array([synthetic])}
+    return obs, {"time": 1.0, "fdd": {"airdata_ekf": {"alarm": alarm, "alarm_time": 1.0 if alarm else None}}}
+
+
+def test_airspeed_switch_feeds_pitot_until_the_alarm_then_the_ekf():
+    policy = AirspeedSwitchPolicy()
+    policy.reset(*obs_info(18.0, 17.0, False))
+    assert policy.act(*obs_info(18.0, 17.0, False))[0] == pytest.approx(18.0)
+    assert policy.act(*obs_info(0.0, 17.5, True))[0] == pytest.approx(17.5)
+    assert policy.switched_at == 1.0
+    assert policy.act(*obs_info(18.0, 16.0, False))[0] == pytest.approx(16.0)   # latched
+    assert SyntheticOnlyPolicy().act(*obs_info(18.0, 16.5, False))[0] == pytest.approx(16.5)
+
+
+def test_airspeed_switch_needs_the_detector():
+    obs, _ = obs_info(18.0, 17.0, False)
+    with pytest.raises(ValueError, match="airdata_ekf"):
+        AirspeedSwitchPolicy().act(obs, {"time": 0.0})
+
+
+def test_policies_are_registered():
+    class Base:
+        params = type("P", (), {"hover_thrust_coefficient": 1.0})()
+        autopilot = object()
+
+    class Env:
+        unwrapped = Base()
+
+    assert isinstance(make_policy("airspeed-switch", Env()), AirspeedSwitchPolicy)
+    assert isinstance(make_policy("synthetic-only", Env()), SyntheticOnlyPolicy)
