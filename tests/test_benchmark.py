@@ -233,3 +233,9 @@ def test_bench_cli_end_to_end(tmp_path, capsys):
     assert (tmp_path / "quad-hover.png").stat().st_size > 0
     assert "quad-hover.png" in (tmp_path / "report.md").read_text()
     assert "quad-hover" in capsys.readouterr().out
+
+
+def test_a_pitot_blockage_is_isolated_by_naming_the_pitot():
+    assert metrics.isolation_target("pitot_blockage", "zero") == "pitot"
+    assert metrics.isolation_target("pitot_blockage", None) == "pitot"
+    assert metrics.isolation_target("rotor_loss", 2) == 2

@@ -108,6 +108,16 @@ def rms(values) -> float | None:
     return float(np.sqrt(np.mean(values ** 2))) if values.size else None
 
 
+#: what a detector must name to isolate a fault whose `target` is not its channel (a pitot blockage's target
+#: is its mode, "zero" or "stuck"; the detector names the sensor)
+ISOLATION_TARGETS = {"pitot_blockage": "pitot"}
+
+
+def isolation_target(kind, target):
+    """The value a detector's `isolated` must equal for the fault (kind, target)."""
+    return ISOLATION_TARGETS.get(kind, target)
+
+
 def altitude_loss(time, altitude, onset: float) -> float | None:
     """Altitude at onset minus the lowest altitude after it, at least 0; None if onset is past the end."""
     time, altitude = np.asarray(time, dtype=float), np.asarray(altitude, dtype=float)

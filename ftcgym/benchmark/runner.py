@@ -162,7 +162,7 @@ def score_episode(log: EpisodeLog) -> dict:
         "fault_kind": fault.get("kind"),
         "fault_target": fault.get("target"),
         "fault_onset": onset,
-        **_detection_fields(log, onset, fault.get("target")),
+        **_detection_fields(log, onset, metrics.isolation_target(fault.get("kind"), fault.get("target"))),
         "recovery_time": None,
         "recovered": None,
         "crashed": log.crashed,
