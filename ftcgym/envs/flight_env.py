@@ -15,7 +15,7 @@ from .world import PyBulletWorld
 
 class FlightEnv(gym.Env):
     """Base class. Subclasses set the class constants, call `_setup` first in `__init__`, and implement
-    `_apply_faults()` (the faults in force from `self.time` on)."""
+    `_physics_step()`, `_observe()` and `_apply_faults()` (the faults in force from `self.time` on)."""
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 30}
     BOUNDS = 100.0        # m, half-width of the flight box
@@ -48,6 +48,18 @@ class FlightEnv(gym.Env):
         self.time, self._physics_steps = 0.0, 0
         self.world.reset(position, attitude, np.zeros(3), np.zeros(3))
         self._crashed, self._termination = False, None
+
+    def _advance(self):
+        """Run the physics substeps of one agent step; (observation, terminated, truncated)."""
+        for _ in range(self.substeps):
+            self._physics_step()
+        obs = self._observe()
+        self._check_crash()
+        terminated = self._crashed
+        truncated = not terminated and self.time >= self.max_episode_seconds - 1e-9
+        if self.render_mode == "human":
+            self.render()
+        return obs, terminated, truncated
 
     def _integrate(self, R: np.ndarray, force: np.ndarray, moment: np.ndarray) -> None:
         """One physics step with the body-frame force and moment; then the faults of the new time and the state."""

@@ -41,6 +41,7 @@ SENSOR_KEYS = ("gyro", "accel", "attitude", "position", "velocity", "pitot_airsp
                "hover_rotor_speed", "pusher_speed", "pusher_current")
 ACTION_LOW = np.array([0, 0, 0, 0, 0, -1, -1, -1, 0], dtype=np.float32)
 ACTION_HIGH = np.ones(9, dtype=np.float32)
+ACTION_LAYOUT = "4 hover-rotor commands, pusher throttle, aileron, elevator, rudder, skew command"
 CRASH_PENALTY = 100.0
 MAX_SPEED = 100.0                  # m/s, observation bound on velocities
 SURFACE_TIME_CONSTANT = 0.03       # s, control-surface servo lag (assumed, hobby-grade digital servo)
@@ -126,14 +127,8 @@ class QuadPlaneEnv(FlightEnv):
 
     # ----------------------------------------------------------------------------------------- step
     def step(self, action):
-        command = check_action(action, ACTION_LOW, ACTION_HIGH, "4 hover-rotor commands, pusher throttle, aileron, elevator, rudder, skew command")
-        self._set_commands(command)
-        for _ in range(self.substeps):
-            self._physics_step()
-        obs = self._observe()
-        self._check_crash()
-        terminated = self._crashed
-        truncated = not terminated and self.time >= self.max_episode_seconds - 1e-9
+        self._set_commands(check_action(action, ACTION_LOW, ACTION_HIGH, ACTION_LAYOUT))
+        obs, terminated, truncated = self._advance()
         return obs, self._reward(), terminated, truncated, self._info()
 
     def _set_commands(self, command: np.ndarray) -> None:

@@ -102,15 +102,8 @@ class QuadrotorEnv(FlightEnv):
     def step(self, action):
         command = check_action(action, ROTOR_LOW, ROTOR_HIGH, "normalised rotor commands")
         self._omega_cmd = self.rotors.command_to_omega(command)
-        for _ in range(self.substeps):
-            self._physics_step()
-        obs = self._observe()
-        self._check_crash()
-        terminated = self._crashed
-        truncated = not terminated and self.time >= self.max_episode_seconds - 1e-9
+        obs, terminated, truncated = self._advance()
         reward = self._reward(command)
-        if self.render_mode == "human":
-            self.render()
         return obs, reward, terminated, truncated, self._info()
 
     def _physics_step(self) -> None:
