@@ -239,3 +239,11 @@ def test_a_pitot_blockage_is_isolated_by_naming_the_pitot():
     assert metrics.isolation_target("pitot_blockage", "zero") == "pitot"
     assert metrics.isolation_target("pitot_blockage", None) == "pitot"
     assert metrics.isolation_target("rotor_loss", 2) == 2
+
+
+def test_summary_counts_a_pitot_alarm_naming_the_pitot_as_isolated():
+    rows = [episode(fault_kind="pitot_blockage", fault_target="zero", fault_onset=45.0, alarm_time=45.1,
+                    detection_delay=0.1, isolated_target="pitot", false_alarm=False, recovered=True,
+                    recovery_time=45.1)]
+    [summary] = metrics.summarize(rows)
+    assert summary["isolation_accuracy"] == 1.0

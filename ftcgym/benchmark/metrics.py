@@ -184,11 +184,12 @@ def _false_alarm_rate(rows: list[dict]) -> float | None:
 
 def _isolation_accuracy(rows: list[dict]) -> float | None:
     """Over the detected faults that have a target to isolate (a rotor, a sensor)."""
-    detected = [row for row in rows if row["detection_delay"] is not None and row["fault_target"] is not None]
+    targets = [isolation_target(row["fault_kind"], row["fault_target"]) for row in rows]
+    detected = [(row, target) for row, target in zip(rows, targets)
+                if row["detection_delay"] is not None and target is not None]
     if not detected:
         return None
-    return isolation_accuracy([row["isolated_target"] for row in detected],
-                              [row["fault_target"] for row in detected])
+    return isolation_accuracy([row["isolated_target"] for row, _ in detected], [target for _, target in detected])
 
 
 def _succeeded(row: dict) -> bool:
