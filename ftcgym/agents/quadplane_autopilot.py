@@ -114,6 +114,7 @@ class QuadPlaneAutopilot:
         self._rate_integral = np.zeros(3)
         self._altitude_integral = 0.0
         self._heading = self._mission_heading
+        self._track = (np.zeros(2), self._mission_heading)
         self._course_angle = None
         self._swept = 0.0
         self.airspeed_used = 0.0
@@ -156,6 +157,9 @@ class QuadPlaneAutopilot:
             lead = max(ground_speed ** 2 / (2.0 * g.back_transition_decel), 20.0)
             if abs(self._swept) >= 2.0 * np.pi * task.laps - lead / task.circuit_radius:
                 self._enter("back_transition")
+                # decelerate along the way the nose points now, without sideslip: on the arc that is up to
+                # ~35 deg off the mission heading, and a sideslipping skewed wing rolls the airframe over
+                self._track = (nav.position[:2].copy(), nav.heading)
         elif self.phase == "back_transition" and min(airspeed, np.hypot(*nav.velocity[:2])) < g.back_transition_done_speed:
             self._enter("return")
             self._heading = nav.heading          # turn home from where the nose points
@@ -186,15 +190,16 @@ class QuadPlaneAutopilot:
             self.target = target
             return self._quad_acceleration(nav, target, velocity_ref), self._quad_heading(nav, target), None
         if self.phase in ("transition", "back_transition"):
-            # hold the line through home heading north and the altitude; the pusher (or drag) sets the speed
-            # hold the line through home along the mission heading, and the altitude; the pusher (or the
-            # drag) owns the speed along it, so no tilt along the track
-            along = np.array([math.cos(self._mission_heading), math.sin(self._mission_heading), 0.0])
-            on_line = along * float(nav.position[:2] @ along[:2])
-            self.target = on_line + np.array([0.0, 0.0, -task.altitude])
+            # hold a line and the altitude (transition: through home along the mission heading; back
+            # transition: the track it started on); the pusher (or the drag) owns the speed along the line,
+            # so no tilt along it
+            origin, heading = self._track if self.phase == "back_transition" else (np.zeros(2), self._mission_heading)
+            along = np.array([math.cos(heading), math.sin(heading), 0.0])
+            on_line = np.append(origin + along[:2] * float((nav.position[:2] - origin) @ along[:2]), -task.altitude)
+            self.target = on_line
             accel = self._quad_acceleration(nav, self.target, along * float(nav.velocity @ along))
             accel -= along * float(accel @ along)
-            return accel, self._mission_heading, None
+            return accel, heading, None
         return self._circle_guidance(nav, airspeed)
 
     def _quad_heading(self, nav, target) -> float:
