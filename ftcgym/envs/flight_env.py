@@ -85,9 +85,6 @@ class FlightEnv(gym.Env):
         self._v_before = self._vel
         self._specific_force = self._R.T @ -self._gravity
 
-    def _apply_faults(self) -> None:
-        raise NotImplementedError
-
     def _check_crash(self) -> None:
         """Crashed: out of the flight box, or touching the ground too fast or too tilted."""
         altitude = -self._pos[2]
