@@ -99,6 +99,7 @@ class QuadPlaneAutopilot:
         self._yaw_per_newton = params.hover_torque_coefficient / params.hover_thrust_coefficient
         self._regularisation = 1e-3 * np.diag([g.rotor_weight] * 4 + [g.surface_weight] * 3)
         self._limits = np.asarray(params.surface_limit, float)
+        self._last_trim = (None, 0.0)
         self.reset()
 
     def reset(self, obs: dict | None = None, info: dict | None = None) -> None:
@@ -293,6 +294,12 @@ class QuadPlaneAutopilot:
         """Pitch that makes the wing carry the weight at this airspeed, by the model (bisection on alpha)."""
         if airspeed < self.params.transition_end_speed:
             return 0.0
+        if self._last_trim[0] == airspeed:     # guidance and the lift estimate ask twice per step
+            return self._last_trim[1]
+        self._last_trim = (airspeed, self._solve_trim_pitch(airspeed))
+        return self._last_trim[1]
+
+    def _solve_trim_pitch(self, airspeed: float) -> float:
         weight = self.params.mass * GRAVITY
         lo, hi = math.radians(-2.0), math.radians(12.0)
         skew = math.pi / 2

@@ -202,6 +202,7 @@ class FaultSchedule:
         self._sensor = [_as_sensor_fault(s) for s in self.specs if s.kind in SENSOR_KINDS + tuple(NAMED_SENSOR_FAULTS)]
         self._pitot = [s for s in self.specs if s.kind == "pitot_blockage"]
         self._propulsion = [s for s in self.specs if s.kind in PROPULSION_KINDS]
+        self.has_propulsion_faults = bool(self._propulsion)
         self._stuck: dict[int, np.ndarray] = {}
         self._dicts = [s.to_dict() for s in self.specs]
         self._onsets = [s.time for s in self.specs]

@@ -68,7 +68,7 @@ class QuadPlaneEnv(FlightEnv):
                                      UNLOADED_SPEED_RATIO, UNLOADED_TIME_CONSTANT)
         self.pusher = PusherMotor(p)
         self._nominal_pusher = {name: getattr(self.pusher, name) for name in ("theta_1", "c_v", "I_0")}
-        self.sensors = QuadPlaneSensors(QuadPlaneSensorConfig.from_overrides(sensors), p.hover_omega, self.dt,
+        self.sensors = QuadPlaneSensors(QuadPlaneSensorConfig.from_overrides(sensors), p.hover_omega,
                                         1.0 / self.agent_hz)
         self._surface_limit = np.broadcast_to(np.asarray(p.surface_limit, dtype=float), (3,)).copy()
         self._surface_alpha = 1.0 - math.exp(-self.dt / SURFACE_TIME_CONSTANT)
@@ -160,8 +160,9 @@ class QuadPlaneEnv(FlightEnv):
     def _apply_faults(self) -> None:
         """Hover-rotor and pusher faults in force from `self.time` on."""
         self._faults.rotor_state(self.time, self.hover_rotors.effectiveness, self.hover_rotors.loaded)
-        for name, factor in self._faults.propulsion_factors(self.time).items():
-            setattr(self.pusher, name, self._nominal_pusher[name] * factor)
+        if self._faults.has_propulsion_faults:      # every physics step: skip the dict when there is nothing to do
+            for name, factor in self._faults.propulsion_factors(self.time).items():
+                setattr(self.pusher, name, self._nominal_pusher[name] * factor)
 
     # ----------------------------------------------------------------------------------------- outputs
     def _observe(self) -> dict:

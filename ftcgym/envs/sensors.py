@@ -154,7 +154,7 @@ class QuadPlaneSensors:
     plus pitot airspeed (noise and first-order lag), GNSS velocity (sample-and-hold), skew angle and the
     pusher's speed and current."""
 
-    def __init__(self, config: QuadPlaneSensorConfig, hover_omega: float, dt: float, agent_dt: float):
+    def __init__(self, config: QuadPlaneSensorConfig, hover_omega: float, agent_dt: float):
         self.config = config
         self.base = QuadrotorSensors(config, 4, hover_omega, agent_dt)
         self._pitot_alpha = 1.0 - np.exp(-agent_dt / config.pitot_time_constant) if config.pitot_time_constant else 1.0
