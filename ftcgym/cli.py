@@ -38,6 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_trim(subparsers)
     _add_train(subparsers)
     _add_evaluate(subparsers)
+    _add_airdata(subparsers)
     return parser
 
 
@@ -222,6 +223,25 @@ def _add_perf(subparsers) -> None:
     parser = subparsers.add_parser("perf", help="measure simulation speed and memory")
     perf.add_arguments(parser)
     parser.set_defaults(run=lambda args, argv: perf.main(args))
+
+
+# ---- airdata-study and thresholds (ftcgym/benchmark/airdata_study.py) ----
+
+def _add_airdata(subparsers) -> None:
+    from ftcgym.benchmark import airdata_study as study   # light: the simulator loads only when flying
+    parser = subparsers.add_parser(
+        "airdata-study", help="every airdata_ekf criterion's alarm and the airspeed error on a scenario",
+        description="Fly a scenario scored on airdata_ekf and report the Table 2 and CUSUM pitot alarms, the "
+                    "innovation (GNSS, pusher RPM) alarms and the EKF airspeed error after detection.")
+    study.add_study_arguments(parser)
+    parser.set_defaults(run=lambda args, argv: study.main_study(args))
+    parser = subparsers.add_parser(
+        "thresholds", help="false-detection probability (001 eq. 40-41) and proposed thresholds",
+        description="From fault-free airdata_ekf signals (flown, or --load), print each criterion's false-"
+                    "detection probability per flight hour (001 eq. 40-41), the autocorrelation check of 001 "
+                    "Fig. 4 and the threshold that meets --target.")
+    study.add_threshold_arguments(parser)
+    parser.set_defaults(run=lambda args, argv: study.main_thresholds(args))
 
 
 # ---- trim ----

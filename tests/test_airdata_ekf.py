@@ -94,6 +94,55 @@ def test_not_started_on_the_ground():
     assert not det.started and det.status()["alarm"] is False and np.all(det.x == 0)
 
 
+def hover_readings(det):
+    """Readings of a hover 5 m up in calm air that the detector's own model explains (a_z = -g from the rotors)."""
+    omega = math.sqrt(9.81 * det.model.mass / (4.0 * det.model.k_f))
+    return {"accel": np.array([0, 0, -9.81]), "gyro": np.zeros(3), "attitude": np.array([0, 0, 0, 1.0]),
+            "gnss_velocity": np.zeros(3), "position": np.array([0, 0, -5.0]), "skew": np.zeros(1),
+            "hover_rotor_speed": np.full(4, omega), "pusher_speed": np.zeros(1), "pitot_airspeed": np.zeros(1)}
+
+
+def hover_with_gnss_jump(jump_time=25.0, seconds=27.0, **kwargs):
+    """The GNSS velocity jumps to 18 m/s north (the cruise ground speed a zeroed reading loses, 001 Sec. 7.3.1)
+    from `jump_time` while the vehicle hovers still: a GNSS fault."""
+    det = AirdataEkfDetector(VSQP, 100.0, **kwargs)
+    base = hover_readings(det)
+    for k in range(int(seconds * 100)):
+        t = 0.01 * k
+        height = 0.0 if k == 0 else 5.0                                 # first reading on the ground: start at once
+        det.update({**base, "gnss_velocity": np.array([18.0 if t >= jump_time else 0.0, 0, 0]),
+                    "position": np.array([0.0, 0.0, -height])}, t)
+    return det
+
+
+def test_gnss_fault_detected_isolated_and_rolled_back():
+    """001 Sec. 6.2 / 7.3.1: the V_N innovation passes Table 2's 2.5 m/s for 0.08 s within 0.12 s (001: 0.12 s);
+    the GNSS rows then get R = 1e6 and the EKF re-runs the last 0.16 s without them, so airspeed and wind stay
+    at their true 0 (without the roll-back the two faulty samples drag the wind estimate metres per second)."""
+    det = hover_with_gnss_jump()
+    status = det.status()
+    assert status["alarm"] and status["isolated"] == "gnss"
+    assert 0.0 < status["innovation_alarms"]["gnss"] - 25.0 <= 0.12 + 1e-9
+    assert status["alarm_time"] == status["innovation_alarms"]["gnss"] and not status["pitot_alarm"]
+    assert np.linalg.norm(det.x) < 0.3
+    no_rollback = {"gnss": {"channels": (0, 1, 2), "norm": (2.5, 0.08, 5.0), "derivative": (30.0, 0.08, 5.0)}}
+    assert np.linalg.norm(hover_with_gnss_jump(innovation_detectors=no_rollback).x[3:]) > 1.0
+
+
+def test_innovation_detectors_wait_for_arming_and_can_be_off():
+    det = hover_with_gnss_jump(jump_time=10.0, seconds=15.0)         # armed 20 s after the start only
+    assert not det.status()["alarm"]
+    # without them, 001 Sec. 6.2's hazard: the GNSS fault drags the EKF airspeed and is blamed on the pitot
+    det = hover_with_gnss_jump(innovation_detectors=None)
+    assert det.status()["innovation_alarms"] == {} and det.status()["isolated"] == "pitot"
+
+
+def test_nan_reading_names_its_key():
+    det = AirdataEkfDetector(VSQP, 100.0)
+    with pytest.raises(ValueError, match="gnss_velocity"):
+        det.update({**hover_readings(det), "gnss_velocity": np.array([0.0, float("nan"), 0.0])}, 0.0)
+
+
 def test_detector_imports_no_simulator():
     """DESIGN.md: fdd runs on recorded logs, so the detector module loads neither pybullet nor ftcgym.envs."""
     code = ("import sys, ftcgym.fdd.airdata_ekf; "

@@ -4,7 +4,8 @@ import pytest
 
 from ftcgym.agents import make_policy
 from ftcgym.agents.airspeed_policies import AirspeedSwitchPolicy, SyntheticOnlyPolicy
-from ftcgym.fdd.pitot_detection import TABLE_2_DERIVATIVE, TABLE_2_NORM, PitotResidualDetector, ThresholdCriterion
+from ftcgym.fdd.pitot_detection import (CUSUM_DEFAULT, TABLE_2_DERIVATIVE, TABLE_2_NORM, PitotResidualDetector,
+                                       ResidualCusum, ThresholdCriterion)
 
 HZ = 25.0
 
@@ -106,3 +107,55 @@ def test_policies_are_registered():
 
     assert isinstance(make_policy("airspeed-switch", Env()), AirspeedSwitchPolicy)
     assert isinstance(make_policy("synthetic-only", Env()), SyntheticOnlyPolicy)
+
+
+def run_cusum(residuals, armed=True, **kwargs):
+    c = ResidualCusum(HZ, **kwargs)
+    for k, r in enumerate(residuals):
+        c.update(r, k / HZ, armed)
+    return c
+
+
+def test_cusum_detects_the_incipient_ramp_before_table_2():
+    """-2.5 m/s^2 from 1 s (001 Sec. 7.2.2): g grows at 2.5 - nu = 1.25 m/s per s, so it reaches h = 2 m/s
+    1.6 s after onset plus the 5 Hz filter's ramp lag (2 zeta / w_n = 0.045 s); Table 2 needs > 2.2 s. With the
+    defaults (0.5 Hz, nu 1.0, h 1.9): 1.9 / 1.5 = 1.27 s plus the 0.45 s lag and the filter's start-up."""
+    t = np.arange(200) / HZ
+    r = np.where(t < 1.0, 0.3, 0.3 - 2.5 * (t - 1.0))
+    c = run_cusum(r, drift=1.25, threshold=2.0, cutoff=5.0)
+    assert c.alarm and c.alarm_time - 1.0 == pytest.approx(1.6 + 0.045, abs=0.08)
+    assert c.alarm_time < run(r).alarm_time - 0.5
+    c = run_cusum(r)
+    assert CUSUM_DEFAULT == (1.0, 1.9, 0.5) and 1.27 + 0.45 - 0.1 < c.alarm_time - 1.0 < 1.27 + 0.45 + 0.3
+    assert c.alarm_time < run(r).alarm_time - 0.3
+
+
+def test_cusum_ignores_slow_drift_rises_and_noise():
+    t = np.arange(25 * 120) / HZ
+    assert not run_cusum(-1.0 * t, drift=1.25, threshold=2.0).alarm            # drift below nu: never builds up
+    assert not run_cusum(+5.0 * t, drift=1.25, threshold=2.0).alarm            # one-sided: a rising residual
+    rng = np.random.default_rng(0)
+    assert not run_cusum(rng.normal(0.0, 0.3, 25 * 600), drift=1.25, threshold=2.0).alarm
+
+
+def test_cusum_abrupt_drop_and_arming():
+    r = np.concatenate([np.full(25, 18.0), np.zeros(25)])                       # the pitot reads zero from 1 s
+    c = run_cusum(r, drift=1.25, threshold=2.0, cutoff=5.0)
+    assert c.alarm and c.alarm_time - 1.0 <= 2 / HZ + 1e-9
+    c = run_cusum(r)                                                             # 0.5 Hz: 4 samples
+    assert c.alarm and c.alarm_time - 1.0 == pytest.approx(4 / HZ)
+    c = run_cusum(r, armed=False)
+    assert not c.alarm and c.statistic == 0.0
+    with pytest.raises(ValueError, match="cusum"):
+        ResidualCusum(HZ, drift=-1.0)
+
+
+def test_airspeed_switch_ignores_a_sensor_alarm():
+    """A GNSS alarm of airdata_ekf (alarm, isolated "gnss", no pitot alarm) leaves the healthy pitot in use."""
+    obs, info = obs_info(18.0, 15.0, True)
+    info["fdd"]["airdata_ekf"].update(isolated="gnss", pitot_alarm=False, pitot_alarm_time=None)
+    policy = AirspeedSwitchPolicy()
+    policy.reset(obs, info)
+    assert policy.act(obs, info)[0] == pytest.approx(18.0) and policy.switched_at is None
+    info["fdd"]["airdata_ekf"].update(pitot_alarm=True, pitot_alarm_time=2.0)
+    assert policy.act(obs, info)[0] == pytest.approx(15.0) and policy.switched_at == 2.0

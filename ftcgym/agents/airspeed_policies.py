@@ -42,8 +42,10 @@ class AirspeedSwitchPolicy:
 
     def act(self, obs: dict, info: dict) -> np.ndarray:
         status = self._status(info)
-        if self.switched_at is None and status["alarm"]:
-            self.switched_at = status.get("alarm_time", info.get("time"))
+        # the pitot alarm only: a GNSS or pusher-RPM alarm of the same detector leaves the pitot healthy
+        # (and the synthetic airspeed degraded), so it is no reason to switch
+        if self.switched_at is None and status.get("pitot_alarm", status["alarm"]):
+            self.switched_at = status.get("pitot_alarm_time", status.get("alarm_time", info.get("time")))
         if self.switched_at is None:
             return np.array([obs["pitot_airspeed"][0]], dtype=np.float32)
         return self._synthetic(obs)

@@ -8,6 +8,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from typing import Callable
 
+from ftcgym.benchmark.random_wind import random_mean_wind
+
 QUADROTOR = "ftcgym/Quadrotor-v0"
 QUADPLANE_AUTOPILOT = "ftcgym/QuadPlaneAutopilot-v0"
 LIGHT_TURBULENCE = {"mean": [0.0, 0.0, 0.0], "turbulence": "light"}
@@ -185,4 +187,39 @@ register(Scenario(
     detector="airdata_ekf",
     description="Quad-plane mission; from 45 s the pitot reading drifts down at 2.5 m/s^2 (water blockage, "
                 "001 Sec. 7.2.2).",
+))
+# EKF fault tolerance (issue 6 part 3, 001 Sec. 7.3): a sensor the EKF uses reads zero in forward flight; scored on
+# the airdata_ekf innovation detectors (isolated "gnss" / "pusher_rpm"); airspeed-switch must not switch on them.
+SENSOR_FAULT_POLICIES = ("airspeed-switch", "oracle-airspeed")
+register(Scenario(
+    name="qp-gnss-fault",
+    env_id=QUADPLANE_AUTOPILOT,
+    env_kwargs={**_QP_MISSION, "faults": [{"kind": "gnss", "time": 45.0}]},
+    policies=SENSOR_FAULT_POLICIES,
+    episodes=2,
+    detector="airdata_ekf",
+    description="Quad-plane mission; the GNSS velocity reads zero from 45 s, in forward flight (001 Sec. 7.3.1).",
+))
+register(Scenario(
+    name="qp-rpm-sensor-fault",
+    env_id=QUADPLANE_AUTOPILOT,
+    env_kwargs={**_QP_MISSION, "faults": [{"kind": "pusher_rpm_sensor", "time": 45.0}]},
+    policies=SENSOR_FAULT_POLICIES,
+    episodes=2,
+    detector="airdata_ekf",
+    description="Quad-plane mission; the pusher RPM sensor reads zero from 45 s, in forward flight (001 Sec. 7.3.2).",
+))
+# False alarms over many fault-free hours: each episode draws its own mean wind (0-9 m/s, any direction, light
+# turbulence; benchmark.random_wind) and flies three laps (~6.5 min of flight); 100 episodes ~ 10 flight hours.
+register(Scenario(
+    name="qp-no-fault-long",
+    env_id=QUADPLANE_AUTOPILOT,
+    env_kwargs={"task": {"name": "mission", "laps": 3}, "max_episode_seconds": 480.0,
+                "wind": {"mean": [0.0, 0.0, 0.0], "turbulence": "light"}},
+    policies=("airspeed-switch",),
+    episodes=10,
+    detector="airdata_ekf",
+    description="Fault-free three-lap missions, mean wind 0-9 m/s from a random direction per episode and light "
+                "turbulence; counts false alarms of the pitot and innovation detectors.",
+    wrappers=(random_mean_wind,),
 ))

@@ -31,6 +31,13 @@ TU Delft 2023 (seed 001). Pipeline per sample:
    (`envs/sensors.py`), so in hover with the tail or side to a 5 m/s wind it reads ~0 while |V| ~ 5-6 m/s,
    and r = pitot - |V| crossed the 5.5 m/s norm threshold on a fault-free mission (seed 1000, hover before
    landing: false alarm at 98.7 s). In forward flight u ~ |V| and the two agree. `"airspeed"` gives 001's r.
+5. Beside Table 2, a one-sided CUSUM on the drop of the same filtered residual (`ResidualCusum`, the
+   statistical test 001 Sec. 7.2.2 and 8.1 recommend for incipient faults), armed with it; `criterion`
+   ("table2", "cusum", "either") picks which drives the pitot alarm, and both alarm times are published.
+6. EKF fault tolerance (Sec. 6.2, Tables 2-3): one detector (low-pass, norm and derivative criteria of
+   Table 2) per measurement innovation, GNSS velocity V_N, V_E, V_D (isolates "gnss") and the accelerometer-
+   model a_x (isolates "pusher_rpm": the pusher RPM enters a_x's model, eq. 13-14); on an alarm the sensor's
+   rows get R = `fault_covariance` for the rest of the flight, so they no longer move the state.
 
 The force model (`ComponentForceModel`) is 001's (eq. 6-30: fuselage, hover rotors, wing, pusher; control
 surfaces and tail neglected as 001 Sec. 4 does), written in the same generalised forms as the simulator's
@@ -51,11 +58,12 @@ Errata and departures (001 as printed):
 from __future__ import annotations
 
 import math
+from collections import deque
 
 import numpy as np
 from scipy import signal
 
-from .pitot_detection import TABLE_2_DERIVATIVE, TABLE_2_NORM, PitotResidualDetector
+from .pitot_detection import CUSUM_DEFAULT, TABLE_2_DERIVATIVE, TABLE_2_NORM, PitotResidualDetector, ResidualCusum
 
 GRAVITY = 9.81
 TWO_PI = 2.0 * math.pi
@@ -69,6 +77,32 @@ WIND_BOOST, WIND_BOOST_SECONDS = 100.0, 20.0   # 001 Sec. 5.4
 ERROR_COEFFICIENTS = ("fuselage_drag_area", "hover_thrust_coefficient", "hover_drag_coefficient",
                       "pusher_thrust_coefficients", "pusher_thrust_k3", "wing_cl0", "wing_cl_alpha", "wing_cd0",
                       "wing_oswald", "wing_cn90", "wing_spanwise_friction")
+
+
+#: 001 Sec. 6.2 / Table 2-3: one detector per measurement innovation, named by the sensor it isolates.
+#: channels index z = [V_N V_E V_D a_x a_y a_z]; norm / derivative = (threshold, time s, cutoff Hz).
+#: GNSS: Table 2 as printed; Table 2 gives the norm row for V_x and the derivative row for V_y, both run on each
+#: of V_N, V_E, V_D (001: "a similar approach can be used for the other axes").
+#: a_x, the accelerometer-model innovation, which Table 3 ties to the pusher RPM (it enters a_x's model through
+#: eq. 13-14) and the skew sensor; 001 implements a_x only, as here. Departure from Table 2's 1.25 m/s^2 for 2 s:
+#: our EKF absorbs a zeroed RPM reading into u and the wind within a second (Table 1's R_ax = 5e-5 trusts the
+#: model), leaving a_x innovations of only +0.06..+0.17 m/s^2 (0.1 Hz-filtered, tuning seed 1000), which 1.25 never
+#: sees. A reading that fails low makes the model miss thrust, so the innovation (measured - model) goes
+#: positive, while the fault-free excursions are mostly negative (to -0.22; +0.04 at most in 0.76 h): the criterion
+#: is one-sided ("sign": +1), held 1 s, at 0.082 m/s^2, the value `ftcgym thresholds` proposes for 0.1% false
+#: detection per flight hour on those fault-free flights (--seed 1000, 12 episodes). The derivative row is Table 2's.
+INNOVATION_DETECTORS = {
+    "gnss": {"channels": (0, 1, 2), "norm": (2.5, 0.08, 5.0), "derivative": (30.0, 0.08, 5.0), "rollback": 0.16},
+    "pusher_rpm": {"channels": (3,), "norm": (0.082, 1.0, 0.1), "derivative": (250.0, 0.12, 0.1), "sign": 1,
+                   "rollback": 6.0},
+}
+#: "rollback" (s, default 0): on the alarm the EKF re-runs from its state that long ago without the sensor
+#: (`AirdataEkfDetector._roll_back`, a departure from 001). GNSS: 0.16 s = the criteria's 2 samples (0.08 s)
+#: plus ~2 samples of delay of the 5 Hz prefilter and innovation low-pass before a zero reading crosses them.
+#: Pusher RPM: 6 s, longer than the 2-4 s the a_x criterion takes (its 0.1 Hz filter, 1 s hold).
+#: Sec. 6.2: "increases its covariance": the variance (units^2) a measurement gets once its detector alarms
+FAULT_COVARIANCE = 1e6
+PITOT_CRITERIA = ("table2", "cusum", "either")
 
 
 def az_covariance_gain(skew: float) -> float:
@@ -240,7 +274,16 @@ class AirdataEkfDetector:
     pitot detection: pitot_key (reading; absent from the readings: no detection), norm_criterion and
     derivative_criterion ((threshold, time s, cutoff Hz), Table 2), detection_delay (s after the start before
     the criteria are armed; None: wind_boost_seconds), pitot_reference ("airspeed": the EKF airspeed |V|, as
-    001; "forward": max(u, 0), the air velocity along the pitot).
+    001; "forward": max(u, 0), the air velocity along the pitot), cusum ((drift m/s^2, threshold m/s, cutoff Hz)
+    of `ResidualCusum`, which always runs beside Table 2), criterion (which pitot test drives `alarm`: "table2",
+    "cusum" or "either"); fault tolerance (Sec. 6.2): innovation_detectors ({sensor: channels, norm,
+    derivative}, INNOVATION_DETECTORS; None: off), fault_covariance (R of a measurement once its detector
+    alarmed); record (keep `trace`, one dict of the detection signals per armed EKF step, for `ftcgym thresholds`).
+
+    Status: `alarm` / `alarm_time` / `isolated` are the first of the pitot alarm (by `criterion`) and the
+    innovation alarms, isolated as "pitot", "gnss" or "pusher_rpm"; `pitot_alarm`, `alarm_time_table2`,
+    `alarm_time_cusum`, `table2_criterion` ("norm" / "derivative") and `innovation_alarms` ({sensor: time}) say
+    which fired and when.
     """
 
     name = "airdata_ekf"
@@ -253,7 +296,9 @@ class AirdataEkfDetector:
                  takeoff_height: float = 1.0, coefficient_error: float = 0.10, error_seed: int | None = None,
                  velocity_key: str = "gnss_velocity", pitot_key: str = "pitot_airspeed",
                  norm_criterion=TABLE_2_NORM, derivative_criterion=TABLE_2_DERIVATIVE,
-                 detection_delay: float | None = None, pitot_reference: str = "forward"):
+                 detection_delay: float | None = None, pitot_reference: str = "forward",
+                 cusum=CUSUM_DEFAULT, criterion: str = "table2", innovation_detectors=INNOVATION_DETECTORS,
+                 fault_covariance: float = FAULT_COVARIANCE, record: bool = False):
         if not (math.isfinite(sample_hz) and sample_hz > 0 and 0 < ekf_hz <= sample_hz):
             raise ValueError(f"sample_hz {sample_hz!r} and ekf_hz {ekf_hz!r}: need 0 < ekf_hz <= sample_hz")
         self.model = ComponentForceModel(params, coefficient_error, error_seed)
@@ -268,6 +313,18 @@ class AirdataEkfDetector:
         self.pitot_key, self.pitot_reference = pitot_key, pitot_reference
         self.detection_delay = self.wind_boost_seconds if detection_delay is None else float(detection_delay)
         self.pitot_detector = PitotResidualDetector(ekf_hz, norm_criterion, derivative_criterion)
+        if criterion not in PITOT_CRITERIA:
+            raise ValueError(f"criterion: {criterion!r}; accepted: {list(PITOT_CRITERIA)}")
+        self.criterion = criterion
+        self.cusum = ResidualCusum(ekf_hz, *cusum)
+        # one PitotResidualDetector (low-pass + norm + derivative criteria) per innovation channel
+        self.innovation_detectors = {
+            sensor: {c: PitotResidualDetector(ekf_hz, spec["norm"], spec["derivative"], spec.get("sign", 0))
+                     for c in spec["channels"]}
+            for sensor, spec in (innovation_detectors or {}).items()}
+        self.fault_covariance, self.record = float(fault_covariance), bool(record)
+        self.rollback = {sensor: float(spec.get("rollback", 0.0)) for sensor, spec in (innovation_detectors or {}).items()}
+        self._history_length = max([round(t * ekf_hz) for t in self.rollback.values()], default=0) + 1
         self.reset()
 
     def reset(self) -> None:
@@ -278,18 +335,28 @@ class AirdataEkfDetector:
         self._ground_z, self._last_q = None, None
         self._filter = _Lowpass(*self._ba)
         self._filtered = None
-        self._pitot, self._armed = None, False
+        self._pitot, self._armed, self._residual = None, False, 0.0
         self.pitot_detector.reset()
+        self.cusum.reset()
+        for channels in self.innovation_detectors.values():
+            for detector in channels.values():
+                detector.reset()
+        self.innovation_alarms = {sensor: None for sensor in self.innovation_detectors}
+        self._newest_alarm = None
+        self._history = deque(maxlen=self._history_length)
+        self.trace = []
 
     def update(self, readings: dict, time: float, command=None) -> None:
         q = np.asarray(readings["attitude"], dtype=float)
         if self._last_q is not None and q @ self._last_q < 0.0:   # keep the quaternion's sign continuous
             q = -q
         self._last_q = q
-        sample = np.concatenate([readings["accel"], readings["gyro"], q, readings[self.velocity_key],
-                                 readings["pusher_speed"], readings["hover_rotor_speed"], readings["skew"]])
-        if not np.all(np.isfinite(sample)):
-            raise ValueError(f"airdata_ekf: a reading is not finite at t = {time}: {sample.tolist()}")
+        keys = ("accel", "gyro", "attitude", self.velocity_key, "pusher_speed", "hover_rotor_speed", "skew")
+        parts = [q if key == "attitude" else np.asarray(readings[key], dtype=float).reshape(-1) for key in keys]
+        for key, part in zip(keys, parts):
+            if not np.all(np.isfinite(part)):
+                raise ValueError(f"airdata_ekf: reading {key!r} is not finite at t = {time}: {part.tolist()}")
+        sample = np.concatenate(parts)
         self._filtered = self._filter(sample)                  # Sec. 5: inputs and measurements alike
         if self.pitot_key in readings:
             self._pitot = float(np.asarray(readings[self.pitot_key]).reshape(-1)[0])
@@ -305,7 +372,43 @@ class AirdataEkfDetector:
             self._ekf(time)
 
     def _ekf(self, time: float) -> None:
-        s = self._filtered
+        self._history.append((time, self._filtered.copy(), self.x.copy(), self.P.copy()))
+        self._ekf_cycle(self._filtered, time)
+        self._armed = time - self.start_time >= self.detection_delay - 1e-9
+        if self._detect_innovation_faults(time):
+            self._roll_back()
+        # Sec. 6.2: a sensor fault must not be blamed on the pitot; and once one is found, 001 Sec. 7.3.2 notes
+        # the residual no longer fits the fault-free thresholds: the pitot tests stop (disarmed) from then on
+        pitot_armed = self._armed and not any(t is not None for t in self.innovation_alarms.values())
+        if self._pitot is not None:                          # Sec. 6.1: r = pitot - EKF airspeed
+            reference = self.airspeed if self.pitot_reference == "airspeed" else max(float(self.x[0]), 0.0)
+            if not math.isfinite(self._pitot):
+                raise ValueError(f"airdata_ekf: reading {self.pitot_key!r} is not finite at t = {time}")
+            self._residual = self._pitot - reference
+            self.pitot_detector.update(self._residual, time, pitot_armed)
+            self.cusum.update(self._residual, time, pitot_armed)
+        if self.record and self._armed:
+            self.trace.append(self._trace_row(time))
+
+    def _roll_back(self) -> None:
+        """Departure from 001 Sec. 6.2 (which only stops using the measurement): the faulty samples that
+        entered before the alarm already moved the state (two GNSS samples of zero, with Table 1's small R,
+        drag the wind estimate ~10 m/s off, and without GNSS it then stays there), so the EKF restarts from
+        its state `rollback` s ago and re-runs the stored samples with the faulty rows' raised covariance."""
+        steps = max(round(self._rollback_seconds() * (1.0 / self.dt)), 0)
+        if steps == 0:
+            return
+        replay = list(self._history)[-min(steps, len(self._history)):]
+        self.x, self.P = replay[0][2].copy(), replay[0][3].copy()
+        for time, sample, _, _ in replay:
+            self._ekf_cycle(sample, time)
+
+    def _rollback_seconds(self) -> float:
+        return max([self.rollback.get(sensor, 0.0) for sensor, t in self.innovation_alarms.items()
+                    if t is not None and t == self._newest_alarm], default=0.0)
+
+    def _ekf_cycle(self, s: np.ndarray, time: float) -> None:
+        """One EKF step on the filtered sample `s`, with the covariances of the sensors' current state."""
         a, omega, Rot = s[0:3], s[3:6], rotation_from_quaternion(s[6:10])
         v_gnd, omega_p, omega_h, skew = s[10:13], float(s[13]), s[14:18], float(s[18])
         model = self.model
@@ -314,6 +417,10 @@ class AirdataEkfDetector:
             Q[6:, 6:] *= self.wind_boost
         R = self.R.copy()
         R[5, 5] *= az_covariance_gain(skew)                  # eq. (39), corrected
+        for sensor, alarm_time in self.innovation_alarms.items():
+            if alarm_time is not None:                       # Sec. 6.2: a faulty measurement no longer updates
+                for c in self.innovation_detectors[sensor]:
+                    R[c, c] = self.fault_covariance
 
         def h(x):                                            # eq. (3) and (31)-(33)
             return np.concatenate([Rot @ x[:3] + x[3:], model.specific_force(x[:3], omega_p, omega_h, skew)])
@@ -330,10 +437,43 @@ class AirdataEkfDetector:
 
         z = np.concatenate([v_gnd, a])
         self.x, self.P, self.innovation, _ = ekf_step(self.x, self.P, self.dt, (a, omega, Rot), z, h, H, Q, R)
-        if self._pitot is not None:                          # Sec. 6.1: r = pitot - EKF airspeed
-            reference = self.airspeed if self.pitot_reference == "airspeed" else max(float(self.x[0]), 0.0)
-            self._armed = time - self.start_time >= self.detection_delay - 1e-9
-            self.pitot_detector.update(self._pitot - reference, time, self._armed)
+
+    def _detect_innovation_faults(self, time: float) -> bool:
+        """Sec. 6.2: each innovation channel through its Table 2 criteria; the first alarm of a sensor's
+        channels latches it (its rows then get `fault_covariance`, see `_ekf_cycle`). True on a new alarm."""
+        new = False
+        for sensor, channels in self.innovation_detectors.items():
+            for c, detector in channels.items():
+                if detector.update(self.innovation[c], time, self._armed) and self.innovation_alarms[sensor] is None:
+                    self.innovation_alarms[sensor] = self._newest_alarm = float(time)
+                    new = True
+        return new
+
+    def _trace_row(self, time: float) -> dict:
+        """The detection signals of this EKF step (fault-free statistics for `false_alarm`)."""
+        row = {"time": float(time), "skew": float(self._filtered[18]), "airspeed": self.airspeed,
+               "pitot_residual_raw": self._residual,
+               "pitot_residual": self.pitot_detector.residual,
+               "pitot_residual_derivative": self.pitot_detector.derivative, "cusum": self.cusum.statistic}
+        for sensor, channels in self.innovation_detectors.items():
+            for c, detector in channels.items():
+                row[f"{sensor}_{c}_innovation"] = detector.residual
+                row[f"{sensor}_{c}_innovation_derivative"] = detector.derivative
+        return row
+
+    def pitot_alarm_time(self) -> float | None:
+        """When the pitot test selected by `criterion` alarmed (None: not yet)."""
+        times = {"table2": [self.pitot_detector.alarm_time], "cusum": [self.cusum.alarm_time],
+                 "either": [self.pitot_detector.alarm_time, self.cusum.alarm_time]}[self.criterion]
+        times = [t for t in times if t is not None]
+        return min(times) if times else None
+
+    def first_alarm(self) -> tuple[float | None, str | None]:
+        """(time, isolated sensor) of the first alarm: the pitot test or an innovation detector."""
+        events = [(t, sensor) for sensor, t in self.innovation_alarms.items() if t is not None]
+        if self.pitot_alarm_time() is not None:
+            events.append((self.pitot_alarm_time(), "pitot"))
+        return min(events) if events else (None, None)
 
     @property
     def airspeed(self) -> float:
@@ -345,8 +485,13 @@ class AirdataEkfDetector:
 
     def status(self) -> dict:
         d = self.pitot_detector
-        return {"alarm": d.alarm, "alarm_time": d.alarm_time, "isolated": "pitot" if d.alarm else None,
-                "criterion": d.criterion, "pitot_residual": float(d.residual),
+        alarm_time, isolated = self.first_alarm()
+        return {"alarm": alarm_time is not None, "alarm_time": alarm_time, "isolated": isolated,
+                "criterion": self.criterion, "pitot_alarm": self.pitot_alarm_time() is not None,
+                "pitot_alarm_time": self.pitot_alarm_time(), "alarm_time_table2": d.alarm_time,
+                "alarm_time_cusum": self.cusum.alarm_time, "table2_criterion": d.criterion,
+                "cusum_statistic": float(self.cusum.statistic), "innovation_alarms": dict(self.innovation_alarms),
+                "pitot_residual": float(d.residual),
                 "pitot_residual_derivative": float(d.derivative),
                 "detection_armed": self._armed, "started": self.started,
                 "start_time": self.start_time, "airspeed": self.airspeed, "wind": self.x[3:].tolist(),

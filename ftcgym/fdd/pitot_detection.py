@@ -23,25 +23,36 @@ from scipy import signal
 #: 001 Table 2, pitot rows: threshold, time threshold (s), cutoff (Hz).
 TABLE_2_NORM = (5.5, 0.25, 5.0)
 TABLE_2_DERIVATIVE = (25.0, 0.12, 5.0)
+#: The CUSUM on the residual's drop (`ResidualCusum`): drift allowance nu (m/s^2), threshold h (m/s), cutoff (Hz).
+#: Tuned on 12 fault-free qp-no-fault-long flights (0.76 h, `ftcgym thresholds --episodes 12 --seed 1000`,
+#: the tuning seeds): the residual's fast noise (its 5 Hz-filtered derivative has sigma ~4 m/s^2) made the CUSUM
+#: on the 5 Hz residual cross 2 m/s 25 times per hour, so it runs on the residual low-passed at 0.5 Hz (a ramp
+#: passes with ~0.5 s lag, the noise does not); nu = 1.0 m/s^2 (below 001's 2.5 m/s^2 ramp); h = 1.9 m/s, the
+#: tool's 1.82 m/s for 0.1% false detection per flight hour (001 Sec. 6.1's budget, run-rate method) rounded up.
+#: Offline on the same flights, a -2.5 m/s^2 ramp injected in cruise: median delay 1.84 s (Table 2 needs > 2.2 s).
+CUSUM_DEFAULT = (1.0, 1.9, 0.5)
 
 
 class ThresholdCriterion:
     """|s| >= threshold for `hold_time` s: fires on the ceil(sample_hz * hold_time)-th consecutive sample above
-    (eq. 40's sequence length)."""
+    (eq. 40's sequence length). `sign` +1 / -1 makes it one-sided (s >= threshold / -s >= threshold)."""
 
-    def __init__(self, threshold: float, hold_time: float, sample_hz: float):
+    def __init__(self, threshold: float, hold_time: float, sample_hz: float, sign: int = 0):
         if not (threshold > 0 and hold_time >= 0 and sample_hz > 0):
             raise ValueError(f"criterion: need threshold > 0, hold_time >= 0, sample_hz > 0; got "
                              f"{threshold!r}, {hold_time!r}, {sample_hz!r}")
         self.threshold, self.hold_time = float(threshold), float(hold_time)
+        if sign not in (-1, 0, 1):
+            raise ValueError(f"criterion: sign {sign!r}; accepted: [-1, 0, 1]")
         self.samples = max(1, math.ceil(sample_hz * hold_time - 1e-9))
-        self.count = 0
+        self.sign, self.count = sign, 0
 
     def reset(self) -> None:
         self.count = 0
 
     def __call__(self, value: float) -> bool:
-        self.count = self.count + 1 if abs(value) >= self.threshold else 0
+        level = abs(value) if self.sign == 0 else self.sign * value
+        self.count = self.count + 1 if level >= self.threshold else 0
         return self.count >= self.samples
 
 
@@ -53,14 +64,14 @@ class PitotResidualDetector:
     `alarm`, `alarm_time`, `criterion` ("norm" / "derivative"), `residual` (filtered), `derivative`.
     """
 
-    def __init__(self, sample_hz: float = 25.0, norm=TABLE_2_NORM, derivative=TABLE_2_DERIVATIVE):
+    def __init__(self, sample_hz: float = 25.0, norm=TABLE_2_NORM, derivative=TABLE_2_DERIVATIVE, sign: int = 0):
         for cutoff in (norm[2], derivative[2]):
             if not (0.0 < cutoff < 0.5 * sample_hz):
                 raise ValueError(f"pitot detection: cutoff {cutoff!r} Hz must lie in (0, {0.5 * sample_hz}) Hz")
         self.sample_hz = float(sample_hz)
         self._norm_ba = signal.butter(2, norm[2], btype="low", fs=sample_hz)
         self._deriv_ba = signal.butter(2, derivative[2], btype="low", fs=sample_hz)
-        self.norm = ThresholdCriterion(norm[0], norm[1], sample_hz)
+        self.norm = ThresholdCriterion(norm[0], norm[1], sample_hz, sign)   # `sign`: a one-sided norm criterion
         self.deriv = ThresholdCriterion(derivative[0], derivative[1], sample_hz)
         self.reset()
 
@@ -94,4 +105,48 @@ class PitotResidualDetector:
         if not self.alarm and (hit_norm or hit_deriv):
             self.alarm, self.alarm_time = True, float(time)
             self.criterion = "derivative" if hit_deriv else "norm"
+        return self.alarm
+
+
+class ResidualCusum:
+    """One-sided CUSUM (Page) on the drop of the low-passed residual: the test on the residual that 001
+    Sec. 7.2.2 and 8.1 recommend over thresholding for incipient faults.
+
+    A blocked pitot reads low (001 Sec. 7.2.2: water blockage, a ramp down; Sec. 7.2.1: a step to zero), so the
+    residual r = pitot - EKF airspeed falls. With r_f the residual low-passed at `cutoff` Hz (2nd-order
+    Butterworth as Table 2's, slower) and d_k = r_f[k-1] - r_f[k] its drop over one sample,
+
+        g_k = max(0, g_{k-1} + d_k - nu / f),      alarm when g_k >= h,
+
+    i.e. g_k is the largest drop of r_f over any window ending now, less nu times the window's length: a
+    slow drift below nu m/s^2 (the wind estimate converging) never builds up, a ramp of rate a > nu alarms
+    after about h / (a - nu) s, a step of more than h at once. One-sided because the pitot faults modelled
+    lower the reading; an EKF airspeed falling after a GNSS or pusher-RPM fault raises r and is left to the
+    innovation detectors. `statistic` is g, armed only while `armed` (reset to 0 otherwise).
+    """
+
+    def __init__(self, sample_hz: float = 25.0, drift: float = CUSUM_DEFAULT[0], threshold: float = CUSUM_DEFAULT[1],
+                 cutoff: float = CUSUM_DEFAULT[2]):
+        # cutoff: its own low-pass (CUSUM_DEFAULT: 0.5 Hz), not Table 2's 5 Hz
+        if not (drift >= 0 and threshold > 0 and 0.0 < cutoff < 0.5 * sample_hz):
+            raise ValueError(f"cusum: need drift >= 0, threshold > 0, 0 < cutoff < {0.5 * sample_hz} Hz; got "
+                             f"{drift!r}, {threshold!r}, {cutoff!r}")
+        self.sample_hz, self.drift, self.threshold = float(sample_hz), float(drift), float(threshold)
+        self._ba = signal.butter(2, cutoff, btype="low", fs=sample_hz)
+        self.reset()
+
+    def reset(self) -> None:
+        self._z, self._last = None, None
+        self.statistic = 0.0
+        self.alarm, self.alarm_time = False, None
+
+    def update(self, residual: float, time: float, armed: bool = True) -> bool:
+        r, self._z = PitotResidualDetector._filter(self._ba, self._z, float(residual))
+        if armed and self._last is not None:
+            self.statistic = max(0.0, self.statistic + (self._last - r) - self.drift / self.sample_hz)
+        else:
+            self.statistic = 0.0
+        self._last = r
+        if armed and not self.alarm and self.statistic >= self.threshold:
+            self.alarm, self.alarm_time = True, float(time)
         return self.alarm

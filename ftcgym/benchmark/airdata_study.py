@@ -1,0 +1,262 @@
+"""Measurements of the airdata_ekf detectors (issue 6 parts 1-3): every criterion's alarm on the same flights,
+the airspeed error after a sensor fault, and threshold proposals from fault-free residual statistics.
+
+    ftcgym airdata-study --scenario NAME [--episodes N] [--seed S] [--policy P] [--env-kwargs JSON] [--out F]
+    ftcgym thresholds [--scenario NAME] [--episodes N] [--seed S] [--target RATE] [--save F.npz | --load F.npz]
+
+`ftcgym bench` scores one alarm per detector (the first); these commands read the detector's status instead,
+so one flight gives the Table 2 and the CUSUM pitot alarm times and each innovation detector's. Episodes are
+seeded as `ftcgym bench` seeds them (`runner.episode_seed`) and flown by `oracle-airspeed` by default: the
+autopilot then flies the same whatever the detector says, so the criteria compete on identical residuals.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+
+import numpy as np
+
+from ftcgym.benchmark.runner import episode_seed, make_env, policy_view
+from ftcgym.benchmark.scenarios import get_scenario
+from ftcgym.fdd import false_alarm
+from ftcgym.fdd.airdata_ekf import EKF_HZ, INNOVATION_DETECTORS
+from ftcgym.fdd.pitot_detection import CUSUM_DEFAULT, TABLE_2_DERIVATIVE, TABLE_2_NORM
+
+DETECTOR = "airdata_ekf"
+FORWARD_SKEW = math.radians(80.0)       # 001 Table 5: forward flight above 80 deg skew
+ALARMS = ("table2", "cusum", "gnss", "pusher_rpm")
+
+
+def fly(scenario_name: str, seed: int, policy_name: str = "oracle-airspeed", env_overrides: dict | None = None,
+        record: bool = False) -> dict:
+    """One episode: each criterion's alarm time and delay, the EKF airspeed error, and (with `record`) the
+    detector's per-EKF-step detection signals under "trace"."""
+    from ftcgym.agents import make_policy
+
+    scenario = get_scenario(scenario_name)
+    if scenario.detector != DETECTOR:
+        raise ValueError(f"scenario {scenario_name!r} is not scored on {DETECTOR!r}")
+    scenario = dataclasses.replace(scenario, detector_kwargs={**scenario.detector_kwargs, "record": record})
+    env = make_env(scenario, env_overrides)
+    try:
+        policy = make_policy(policy_name, env)
+        obs, info = env.reset(seed=seed)
+        mean_wind = info.get("mean_wind")
+        policy.reset(obs, policy_view(info, policy))
+        rows, onset = [], None
+        while True:
+            rows.append(_sample(obs, info))
+            onset = onset if onset is not None else info["fault"]["onset_time"]
+            obs, _, terminated, truncated, info = env.step(policy.act(obs, policy_view(info, policy)))
+            if terminated or truncated:
+                break
+        rows.append(_sample(obs, info))
+        onset = onset if onset is not None else info["fault"]["onset_time"]
+        trace = env.get_wrapper_attr("detector").trace if record else None
+    finally:
+        env.close()
+    result = _score(np.array(rows), info, onset)
+    result.update(seed=int(seed), scenario=scenario_name, policy=policy_name, mean_wind=mean_wind)
+    if record:
+        result["trace"] = trace
+    return result
+
+
+def _sample(obs: dict, info: dict) -> list[float]:
+    truth = info["truth"]
+    return [info["time"], float(obs[f"fdd/{DETECTOR}/airspeed"][0]), truth["airspeed"], truth["skew"],
+            -truth["position"][2]]
+
+
+def _alarm_times(status: dict) -> dict:
+    return {"table2": status["alarm_time_table2"], "cusum": status["alarm_time_cusum"],
+            **{sensor: status["innovation_alarms"].get(sensor) for sensor in ("gnss", "pusher_rpm")}}
+
+
+def _score(samples: np.ndarray, info: dict, onset) -> dict:
+    time, ekf, true, skew, altitude = samples.T
+    status = info["fdd"][DETECTOR]
+    alarms = _alarm_times(status)
+    airborne = altitude > 0.5
+    error = np.abs(ekf - true)
+    out = {"fault_kind": info["fault"]["kind"] if onset is not None else None, "fault_onset": onset,
+           "flight_time": float(time[-1]), "airborne_time": float(np.sum(np.diff(time, append=time[-1]) * airborne)),
+           "crashed": bool(info["crashed"]), "table2_criterion": status["table2_criterion"],
+           "ekf_started": status["start_time"]}
+    for name, t in alarms.items():
+        out[f"alarm_time_{name}"] = t
+        out[f"delay_{name}"] = None if (t is None or onset is None or t < onset) else t - onset
+        out[f"false_alarm_{name}"] = t is not None and (onset is None or t < onset)
+    monitored = airborne & (time >= (status["start_time"] or math.inf))
+    before = monitored & (time < (onset if onset is not None else math.inf))
+    out["airspeed_rmse_before_onset"] = _rms(error[before])
+    sensor_alarm = min([t for t in (alarms["gnss"], alarms["pusher_rpm"]) if t is not None], default=None)
+    if sensor_alarm is not None:
+        after = monitored & (time >= sensor_alarm)
+        out["airspeed_error_max_after_detection"] = float(error[after].max()) if after.any() else None
+        forward = after & (skew > FORWARD_SKEW)
+        out["airspeed_error_max_after_detection_forward"] = float(error[forward].max()) if forward.any() else None
+        out["airspeed_rmse_after_detection"] = _rms(error[after])
+    if onset is not None:
+        out["airspeed_error_max_onset_to_detection"] = _max(error[monitored & (time >= onset)
+                                                                  & (time < (sensor_alarm or math.inf))])
+    return out
+
+
+def _rms(values: np.ndarray):
+    return float(np.sqrt(np.mean(values ** 2))) if values.size else None
+
+
+def _max(values: np.ndarray):
+    return float(values.max()) if values.size else None
+
+
+def study(scenario_name: str, episodes: int, seed: int, policy_name: str = "oracle-airspeed",
+          env_overrides: dict | None = None, record: bool = False, progress=None) -> list[dict]:
+    """`episodes` episodes seeded as `ftcgym bench --seed seed` seeds them."""
+    results = []
+    for index in range(episodes):
+        results.append(fly(scenario_name, episode_seed(seed, index), policy_name, env_overrides, record))
+        if progress:
+            progress(index, results[-1])
+    return results
+
+
+def summary(results: list[dict]) -> dict:
+    """Median / max delays, detections and false alarms per criterion, flight hours."""
+    out = {"episodes": len(results), "flight_hours": sum(r["airborne_time"] for r in results) / 3600.0,
+           "crashes": sum(r["crashed"] for r in results)}
+    for name in ALARMS:
+        delays = [r[f"delay_{name}"] for r in results if r[f"delay_{name}"] is not None]
+        out[name] = {"detected": len(delays), "false_alarms": sum(r[f"false_alarm_{name}"] for r in results),
+                     "delay_median": float(np.median(delays)) if delays else None,
+                     "delay_max": float(np.max(delays)) if delays else None}
+    errors = [r.get("airspeed_error_max_after_detection") for r in results]
+    errors = [e for e in errors if e is not None]
+    out["airspeed_error_max_after_detection"] = max(errors) if errors else None
+    forward = [r.get("airspeed_error_max_after_detection_forward") for r in results]
+    forward = [e for e in forward if e is not None]
+    out["airspeed_error_max_after_detection_forward"] = max(forward) if forward else None
+    return out
+
+
+# ---- thresholds (001 eq. 40-41, Fig. 4) ----
+
+def criteria(cusum=CUSUM_DEFAULT, innovation_detectors=INNOVATION_DETECTORS) -> list[tuple]:
+    """(name, trace signal, threshold, hold time, sign) of every criterion the detector runs; sign +1 / -1: a
+    one-sided criterion, whose statistics are those of max(sign * s, 0)."""
+    out = [("pitot norm", "pitot_residual", TABLE_2_NORM[0], TABLE_2_NORM[1], 0),
+           ("pitot derivative", "pitot_residual_derivative", TABLE_2_DERIVATIVE[0], TABLE_2_DERIVATIVE[1], 0),
+           ("pitot cusum", "cusum", cusum[1], 0.0, 0)]
+    for sensor, spec in innovation_detectors.items():
+        for c in spec["channels"]:
+            out.append((f"{sensor}[{c}] norm", f"{sensor}_{c}_innovation", *spec["norm"][:2], spec.get("sign", 0)))
+            out.append((f"{sensor}[{c}] derivative", f"{sensor}_{c}_innovation_derivative", *spec["derivative"][:2], 0))
+    return out
+
+
+def traces_to_segments(traces: list[list[dict]]) -> dict[str, list[np.ndarray]]:
+    """signal -> one array per flight, from the detectors' `trace`s."""
+    signals = {key for trace in traces for row in trace[:1] for key in row if key != "time"}
+    return {key: [np.array([row[key] for row in trace], dtype=float) for trace in traces if trace]
+            for key in sorted(signals)}
+
+
+def threshold_table(segments: dict[str, list[np.ndarray]], target_per_hour: float = 1e-3,
+                    sample_hz: float = EKF_HZ, tail: str = "auto") -> list[dict]:
+    """`false_alarm.criterion_report` for each criterion of `criteria()` on the fault-free `segments`."""
+    rows = []
+    for name, signal, threshold, hold, sign in criteria():
+        if signal not in segments:
+            continue
+        parts = segments[signal] if sign == 0 else [np.maximum(sign * s, 0.0) for s in segments[signal]]
+        report = false_alarm.criterion_report(parts, threshold, hold, sample_hz, target_per_hour, tail,
+                                              max_lag=max(false_alarm.sequence_length(hold, sample_hz), 25))
+        rows.append({"criterion": name, **report})
+    return rows
+
+
+def save_segments(path: str, segments: dict[str, list[np.ndarray]]) -> None:
+    np.savez_compressed(path, **{f"{key}__{i}": s for key, parts in segments.items() for i, s in enumerate(parts)})
+
+
+def load_segments(path: str) -> dict[str, list[np.ndarray]]:
+    data = np.load(path)
+    out: dict[str, list] = {}
+    for name in sorted(data.files, key=lambda n: (n.rsplit("__", 1)[0], int(n.rsplit("__", 1)[1]))):
+        out.setdefault(name.rsplit("__", 1)[0], []).append(data[name])
+    return out
+
+
+# ---- command line ----
+
+def add_study_arguments(parser) -> None:
+    parser.add_argument("--scenario", required=True, metavar="NAME", help="an airdata_ekf scenario")
+    _common(parser, episodes=10)
+    parser.add_argument("--out", metavar="FILE", help="write episodes and summary as JSON")
+
+
+def add_threshold_arguments(parser) -> None:
+    parser.add_argument("--scenario", default="qp-no-fault-long", metavar="NAME",
+                        help="fault-free airdata_ekf scenario to fly (default: qp-no-fault-long)")
+    _common(parser, episodes=4)
+    parser.add_argument("--target", type=float, default=1e-3, metavar="P",
+                        help="false detection probability per flight hour (default 1e-3: 001's 0.1%%)")
+    parser.add_argument("--tail", default="auto", choices=false_alarm.TAILS, help="tail model (default auto)")
+    parser.add_argument("--save", metavar="NPZ", help="save the fault-free signals flown")
+    parser.add_argument("--load", metavar="NPZ", help="use saved signals instead of flying")
+    parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
+
+
+def _common(parser, episodes: int) -> None:
+    parser.add_argument("--episodes", type=int, default=episodes, metavar="N")
+    parser.add_argument("--seed", type=int, default=0, metavar="S", help="run seed, as ftcgym bench --seed")
+    parser.add_argument("--policy", default="oracle-airspeed", metavar="NAME")
+    parser.add_argument("--env-kwargs", type=json.loads, default=None, metavar="JSON",
+                        help="merged into the scenario's env kwargs")
+
+
+def main_study(args) -> int:
+    def progress(index, row):
+        delays = {name: row[f"delay_{name}"] for name in ALARMS}
+        print(f"episode {index} seed {row['seed']}: delays {delays}, false "
+              f"{[n for n in ALARMS if row[f'false_alarm_{n}']]}, airborne {row['airborne_time']:.0f} s", flush=True)
+
+    results = study(args.scenario, args.episodes, args.seed, args.policy, args.env_kwargs, progress=progress)
+    result = {"summary": summary(results), "episodes": results,
+              "config": {"scenario": args.scenario, "episodes": args.episodes, "seed": args.seed,
+                         "policy": args.policy, "env_kwargs": args.env_kwargs}}
+    print(json.dumps(result["summary"], indent=1))
+    if args.out:
+        with open(args.out, "w") as f:
+            json.dump(result, f, indent=1)
+    return 0
+
+
+def main_thresholds(args) -> int:
+    if args.load:
+        segments = load_segments(args.load)
+    else:
+        results = study(args.scenario, args.episodes, args.seed, args.policy, args.env_kwargs, record=True)
+        if any(r["fault_onset"] is not None for r in results):
+            raise ValueError(f"scenario {args.scenario!r} has faults: thresholds need fault-free flights")
+        segments = traces_to_segments([r["trace"] for r in results])
+        if args.save:
+            save_segments(args.save, segments)
+    rows = threshold_table(segments, args.target, tail=args.tail)
+    if args.json:
+        print(json.dumps(rows, indent=1))
+        return 0
+    print(f"fault-free samples: {rows[0]['samples'] if rows else 0} at {EKF_HZ:g} Hz ({rows[0]['hours']:.2f} h); "
+          f"target {args.target:g} false detections per flight hour (001 eq. 40-41)")
+    head = ("criterion", "Z", "T s", "n", "p_single", "p_seq", "p_flight/h (eq. 41)", "runs/h seen", "rho1",
+            "max|rho|", "indep", "proposed Z", "method")
+    print(" | ".join(head))
+    for r in rows:
+        print(" | ".join([r["criterion"], f"{r['threshold']:g}", f"{r['hold_time']:g}", str(r["samples_in_sequence"]),
+                          f"{r['p_single']:.3g}", f"{r['p_seq']:.3g}", f"{r['p_flight_hour']:.3g}",
+                          f"{r['run_rate_per_hour']:.3g}", f"{r['rho_lag1']:.2f}", f"{r['max_abs_rho']:.2f}",
+                          "yes" if r["independent"] else "no",
+                          "-" if r["proposed_threshold"] is None else f"{r['proposed_threshold']:.3g}", r["method"]]))
+    return 0
