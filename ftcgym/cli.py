@@ -1,7 +1,8 @@
 """The `ftcgym` command line.
 
     ftcgym bench [--scenario NAME...] [--policy NAME...] [--episodes N] [--seed S] [--workers W]
-                 [--env-kwargs JSON] [--out DIR] [--list]
+                 [--env-kwargs JSON] [--out DIR] [--list] [--backend local|ray] [--ray-address ADDR]
+    ftcgym sweep CONFIG [--backend local|ray] [--out DIR] [--resume]   (see ftcgym/benchmark/sweep.py)
     ftcgym perf ...   (see ftcgym/perf.py)
     ftcgym train --config FILE_OR_TASK [--algo PPO|SAC] [--n-envs N] [--total-steps N] [--seed S] [--out DIR]
     ftcgym evaluate MODEL [--scenario NAME] [--episodes N] [--seed S]
@@ -38,6 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_trim(subparsers)
     _add_train(subparsers)
     _add_evaluate(subparsers)
+    _add_sweep(subparsers)
     _add_airdata(subparsers)
     return parser
 
@@ -52,6 +54,7 @@ def package_version() -> str:
 # ---- bench ----
 
 def _add_bench(subparsers) -> None:
+    from ftcgym.benchmark.backends import add_backend_arguments  # light: no simulator import
     parser = subparsers.add_parser(
         "bench", help="run the fault-tolerance benchmark",
         description="Fly policies through benchmark scenarios and report detection and recovery metrics. "
@@ -74,6 +77,7 @@ def _add_bench(subparsers) -> None:
     parser.add_argument("--out", default="bench_out", metavar="DIR",
                         help="output directory (default: bench_out)")
     parser.add_argument("--list", action="store_true", help="list scenarios and policies, then exit")
+    add_backend_arguments(parser)
     parser.set_defaults(run=_run_bench)
 
 
@@ -89,7 +93,9 @@ def _run_bench(args, argv: list[str]) -> int:
     scenarios = [_with_detector(scenario, args.detector, args.detector_kwargs)
                  for scenario in (args.scenario or default_scenarios())]
     started = time.perf_counter()
-    episodes = run_benchmark(scenarios, args.policy, args.episodes, args.seed, args.workers, args.env_kwargs)
+    episodes = run_benchmark(scenarios, args.policy, args.episodes, args.seed, args.workers, args.env_kwargs,
+                             backend=args.backend, ray_address=args.ray_address, chunk=args.chunk,
+                             retries=args.retries)
     summary = summarize(episodes)
     config = _bench_config(args, argv, scenarios, wall_time_s=time.perf_counter() - started)
     paths = write_report(args.out, summary, episodes, config)
@@ -127,6 +133,7 @@ def _bench_config(args, argv: list[str], scenarios, wall_time_s: float) -> dict:
         "episodes": args.episodes,
         "policies": args.policy,
         "workers": args.workers,
+        "backend": args.backend,
         "env_overrides": args.env_kwargs,
         "scenarios": [{
             "name": scenario.name,
@@ -242,6 +249,19 @@ def _add_airdata(subparsers) -> None:
                     "Fig. 4 and the threshold that meets --target.")
     study.add_threshold_arguments(parser)
     parser.set_defaults(run=lambda args, argv: study.main_thresholds(args))
+
+
+# ---- sweep (ftcgym/benchmark/sweep.py provides add_arguments(parser) and main(args, argv)) ----
+
+def _add_sweep(subparsers) -> None:
+    from ftcgym.benchmark import sweep
+    parser = subparsers.add_parser(
+        "sweep", help="parameter sweep: parameter sets x scenarios x seeds, per-set results and plots",
+        description="Fly every parameter set of a sweep config (YAML, or the built-in fig11: 000 Fig. 11) over "
+                    "its scenarios and seeds, on worker processes or Ray; rows are journaled as they finish, "
+                    "so --resume continues an interrupted sweep.")
+    sweep.add_arguments(parser)
+    parser.set_defaults(run=sweep.main)
 
 
 # ---- trim ----

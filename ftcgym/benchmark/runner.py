@@ -2,7 +2,7 @@
 
 `run_episode` flies one episode and returns its row of `EPISODE_FIELDS` plus a compact trajectory
 under "trajectory" (for plots, never written to CSV or JSON). `run_benchmark` runs many episodes,
-in worker processes when asked, and returns the rows in a fixed order. Episode seeds depend only on
+in worker processes or as Ray tasks when asked (`backends`), and returns the rows in a fixed order. Episode seeds depend only on
 the base seed and the episode index, so every policy flies the same episodes and a seed reproduces
 the numbers.
 """
@@ -10,14 +10,13 @@ from __future__ import annotations
 
 import copy
 import os
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 
 import gymnasium as gym
 import numpy as np
-from tqdm import tqdm
 
 from ftcgym.benchmark import metrics
+from ftcgym.benchmark.backends import Job, run_jobs
 from ftcgym.benchmark.scenarios import Scenario, get_scenario
 from ftcgym.fdd.metrics import detection_delay, is_false_alarm
 
@@ -279,39 +278,20 @@ def run_episode(scenario: Scenario | str, policy_name: str, seed: int,
 
 def run_benchmark(scenarios, policies=None, episodes: int | None = None, seed: int = 0,
                   workers: int | None = 1, env_overrides: dict | None = None,
-                  progress: bool = True) -> list[dict]:
+                  progress: bool = True, backend: str = "local", **backend_options) -> list[dict]:
     """Run every (scenario, policy, episode) and return the episode rows in that nested order.
 
     `scenarios` are Scenario objects or names; `policies` and `episodes` default to each scenario's
     own. `workers` > 1 runs episodes in that many processes (None: one per CPU); 1 runs in-process.
+    `backend` "ray" runs them as Ray tasks instead; `backend_options` go to `backends.run_jobs`
+    (ray_address, chunk, retries, callbacks).
     """
-    jobs = [(scenario, policy, episode_seed(seed, index), env_overrides)
+    jobs = [Job(f"{scenario.name}/{policy}/{index}", scenario, policy, episode_seed(seed, index), env_overrides)
             for scenario in (get_scenario(s) if isinstance(s, str) else s for s in scenarios)
             for policy in (policies or scenario.policies)
             for index in range(episodes or scenario.episodes)]
     workers = min(workers or os.cpu_count() or 1, max(len(jobs), 1))
-    with tqdm(total=len(jobs), desc="bench", unit="episode", disable=not progress) as bar:
-        if workers == 1:
-            return [_advance(bar, run_episode(*job)) for job in jobs]
-        return _run_in_pool(jobs, workers, bar)
-
-
-def _run_in_pool(jobs: list[tuple], workers: int, bar: tqdm) -> list[dict]:
-    """Run jobs in processes, ticking `bar` as they finish; results in job order, first error raised."""
-    with ProcessPoolExecutor(workers) as pool:
-        futures = [pool.submit(run_episode, *job) for job in jobs]
-        try:
-            for future in as_completed(futures):
-                _advance(bar, future.result())
-        except BaseException:
-            pool.shutdown(cancel_futures=True)
-            raise
-        return [future.result() for future in futures]
-
-
-def _advance(bar: tqdm, result):
-    bar.update()
-    return result
+    return run_jobs(jobs, backend, workers, progress=progress, **backend_options)
 
 
 def _native(value):

@@ -1,0 +1,98 @@
+"""A sweep's outputs: per-set summary (results.json, sets.csv, report.md) and the plots of 000 Fig. 11:
+detection-delay box plots per parameter set (detection_delay.png), missed detections and false alarms per
+set (detections.png).
+"""
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+from matplotlib.figure import Figure  # a bare Figure renders with Agg: no pyplot, no global backend
+
+SET_FIELDS = ("parameter_set", "flights", "fault_flights", "detected", "missed", "false_alarms",
+              "delay_median_ms", "delay_q1_ms", "delay_q3_ms", "delay_max_ms")
+
+
+def summarize_sets(rows: list[dict], set_names) -> list[dict]:
+    """Per parameter set: flights, faults detected and missed, flights with a false alarm, delay quartiles (ms).
+
+    A missed detection is a fault flight without an alarm at or after onset; a false alarm, an alarm before
+    onset or in a fault-free flight (DESIGN.md), so a flight that alarmed early counts as both.
+    """
+    return [_summarize_set(name, [row for row in rows if row["parameter_set"] == name]) for name in set_names]
+
+
+def _summarize_set(name: str, rows: list[dict]) -> dict:
+    faulty = [row for row in rows if row["fault_onset"] is not None]
+    delays_ms = 1000.0 * np.array([row["detection_delay"] for row in faulty if row["detection_delay"] is not None])
+    quartiles = np.percentile(delays_ms, [50, 25, 75, 100]).tolist() if delays_ms.size else [None] * 4
+    return dict(zip(SET_FIELDS, (name, len(rows), len(faulty), int(delays_ms.size), len(faulty) - delays_ms.size,
+                                 sum(bool(row["false_alarm"]) for row in rows), *quartiles)))
+
+
+def write_sweep_report(out_dir, config, rows: list[dict], run: dict) -> str:
+    """Write results.json, sets.csv, the two plots and report.md; return the summary as a text table."""
+    out_dir = Path(out_dir)
+    names = [s.name for s in config.parameter_sets]
+    summary = summarize_sets(rows, names)
+    results = {"summary": summary, "episodes": rows, "config": {**config.to_json(), "run": run}}
+    (out_dir / "results.json").write_text(json.dumps(results, indent=1) + "\n")
+    with (out_dir / "sets.csv").open("w", newline="") as file:
+        writer = csv.DictWriter(file, fieldnames=SET_FIELDS)
+        writer.writeheader()
+        writer.writerows(summary)
+    plot_delays(out_dir / "detection_delay.png", rows, names, config.name)
+    plot_detections(out_dir / "detections.png", summary, config.name)
+    table = format_sets(summary)
+    (out_dir / "report.md").write_text(
+        f"# Sweep {config.name}\n\n{config.description}\n\nCommand: `{run['command']}` ({run['backend']} backend, "
+        f"{run['wall_time_s']:.0f} s)\n\n```\n{table}\n```\n\n![detection delay](detection_delay.png)\n\n"
+        f"![missed detections and false alarms](detections.png)\n")
+    return table
+
+
+def format_sets(summary: list[dict]) -> str:
+    header = ["set", "flights", "faults", "detected", "missed", "false al.", "delay med ms", "q1", "q3", "max"]
+    cells = [[str(row[f]) if not isinstance(row[f], float) else f"{row[f]:.0f}" for f in SET_FIELDS] for row in summary]
+    cells = [[cell if cell != "None" else "-" for cell in line] for line in cells]
+    widths = [max(len(c) for c in column) for column in zip(header, *cells)]
+    return "\n".join("  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(line, widths)))
+                     for line in [header, *cells])
+
+
+def plot_delays(path: Path, rows: list[dict], names: list[str], title: str) -> Path:
+    """000 Fig. 11: one box of detection delays (ms) per set; outliers beyond 1.5 IQR as red crosses."""
+    delays = [[1000.0 * row["detection_delay"] for row in rows
+               if row["parameter_set"] == name and row["detection_delay"] is not None] for name in names]
+    figure = Figure(figsize=(max(6.0, 0.45 * len(names) + 2.0), 4.5), layout="constrained")
+    axes = figure.add_subplot()
+    axes.boxplot([d if d else [np.nan] for d in delays], tick_labels=names, whis=1.5,
+                 flierprops={"marker": "+", "markeredgecolor": "red"})
+    axes.set_ylabel("detection delay t_d (ms)")
+    axes.set_title(f"{title}: detection delay per parameter set")
+    for label in axes.get_xticklabels():
+        label.set(rotation=60, ha="right")
+    axes.grid(axis="y", alpha=0.3)
+    figure.savefig(path, dpi=110)
+    return path
+
+
+def plot_detections(path: Path, summary: list[dict], title: str) -> Path:
+    """Missed detections and false alarms (flights) per set, side by side."""
+    x = np.arange(len(summary))
+    figure = Figure(figsize=(max(6.0, 0.45 * len(summary) + 2.0), 4.0), layout="constrained")
+    axes = figure.add_subplot()
+    axes.bar(x - 0.2, [row["missed"] for row in summary], 0.4, label="missed detections")
+    axes.bar(x + 0.2, [row["false_alarms"] for row in summary], 0.4, label="flights with a false alarm")
+    axes.set_xticks(x, [row["parameter_set"] for row in summary], rotation=60, ha="right")
+    axes.set_ylabel("flights")
+    faults, flights = summary[0]["fault_flights"], summary[0]["flights"]
+    axes.set_title(f"{title}: {faults} fault flights, {flights - faults} fault-free, per set")
+    axes.yaxis.get_major_locator().set_params(integer=True)
+    most = max([row["missed"] for row in summary] + [row["false_alarms"] for row in summary])
+    axes.set_ylim(0, max(most, 1) + 0.5)  # zero counts stay on the axis instead of a symmetric empty range
+    axes.legend()
+    figure.savefig(path, dpi=110)
+    return path
