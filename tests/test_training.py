@@ -110,6 +110,9 @@ def test_train_writes_model_statistics_checkpoints_evaluations_and_manifest(trai
         assert evaluation["episodes"] == 1 and evaluation["success_rate"] in (0.0, 1.0)
         assert evaluation["crash_rate"] in (0.0, 1.0) and evaluation["isolation_accuracy"] == 1.0
     assert (trained / "best" / "model.zip").is_file() and (trained / "best" / "vecnormalize.pkl").is_file()
+    curves = (trained / "logs" / "progress.csv").read_text().splitlines()
+    assert "time/total_timesteps" in curves[0] and len(curves) >= 3   # header + one row per PPO update (2)
+    assert "eval/success_rate" in curves[0]
 
 
 def test_learned_policy_loads_and_acts_deterministically(trained):

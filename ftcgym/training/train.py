@@ -9,7 +9,8 @@ Writes to OUT:
     manifest.json                   command, config, seed, steps, wall time, git commit, versions
     checkpoints/                    model_<steps>_steps.zip, model_vecnormalize_<steps>_steps.pkl
     best/model.zip, best/vecnormalize.pkl, evaluations.jsonl   when the config has an `eval` section
-    tb/                             TensorBoard event files
+    logs/progress.csv               training curves (SB3's logger)
+    tb/                             TensorBoard event files (when tensorboard is installed)
 """
 from __future__ import annotations
 
@@ -83,9 +84,12 @@ def train(config: TrainConfig, out: str | Path, progress: bool = True, command: 
     if not tensorboard:
         print("ftcgym train: tensorboard is not installed; no TensorBoard logs (pip install tensorboard)")
     model = algorithm_class(config.algo)(
-        config.policy, venv, seed=config.seed, policy_kwargs=config.policy_kwargs or None,
-        tensorboard_log=str(out / "tb") if tensorboard else None, device="cpu", verbose=verbose,
-        **config.hyperparams)
+        config.policy, venv, seed=config.seed, policy_kwargs=config.policy_kwargs or None, device="cpu",
+        verbose=verbose, **config.hyperparams)
+    # Our own logger: training curves always land in OUT/logs/progress.csv (and OUT/tb with tensorboard);
+    # SB3's default would open an empty SB3-<date> folder in /tmp for every run.
+    model.set_logger(configure_logger(str(out / "logs"), ["csv"] + (["stdout"] if verbose else []),
+                                      str(out / "tb") if tensorboard else None))
     callbacks = [CheckpointCallback(max(config.checkpoint_freq // config.n_envs, 1), str(out / "checkpoints"),
                                     name_prefix="model", save_vecnormalize=bool(config.normalize))]
     if config.eval:
@@ -98,8 +102,7 @@ def train(config: TrainConfig, out: str | Path, progress: bool = True, command: 
     if progress and not sb3_bar:
         callbacks.append(TqdmProgressCallback(config.total_steps))
     started = time.perf_counter()
-    model.learn(config.total_steps, callback=CallbackList(callbacks), progress_bar=sb3_bar,
-                tb_log_name=config.algo)
+    model.learn(config.total_steps, callback=CallbackList(callbacks), progress_bar=sb3_bar)
     wall_time = time.perf_counter() - started
     model.save(out / MODEL_FILE)
     if config.normalize:
@@ -108,6 +111,16 @@ def train(config: TrainConfig, out: str | Path, progress: bool = True, command: 
     manifest = _manifest(config, model, wall_time, command)
     (out / MANIFEST_FILE).write_text(json.dumps(manifest, indent=2) + "\n")
     return manifest
+
+
+def configure_logger(folder: str, formats: list[str], tensorboard_folder: str | None):
+    """An SB3 logger writing `formats` to `folder` and, when given, TensorBoard event files to its own folder."""
+    from stable_baselines3.common.logger import KVWriter, Logger, TensorBoardOutputFormat, make_output_format
+
+    writers: list[KVWriter] = [make_output_format(f, folder) for f in formats]
+    if tensorboard_folder is not None:
+        writers.append(TensorBoardOutputFormat(tensorboard_folder))
+    return Logger(folder, writers)
 
 
 def _manifest(config: TrainConfig, model, wall_time: float, command: str | None) -> dict:
