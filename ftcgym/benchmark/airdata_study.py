@@ -21,7 +21,7 @@ from ftcgym.benchmark.runner import episode_seed, make_env, policy_view
 from ftcgym.benchmark.scenarios import get_scenario
 from ftcgym.fdd import false_alarm
 from ftcgym.fdd.airdata_ekf import EKF_HZ, INNOVATION_DETECTORS
-from ftcgym.fdd.pitot_detection import CUSUM_DEFAULT, TABLE_2_DERIVATIVE, TABLE_2_NORM
+from ftcgym.fdd.pitot_detection import CUSUM_DEFAULT, TABLE_2_DERIVATIVE, TABLE_2_NORM, ResidualCusum
 
 DETECTOR = "airdata_ekf"
 FORWARD_SKEW = math.radians(80.0)       # 001 Table 5: forward flight above 80 deg skew
@@ -163,9 +163,25 @@ def traces_to_segments(traces: list[list[dict]]) -> dict[str, list[np.ndarray]]:
             for key in sorted(signals)}
 
 
+def cusum_segments(raw_segments: list[np.ndarray], cusum=CUSUM_DEFAULT, sample_hz: float = EKF_HZ) -> list[np.ndarray]:
+    """The CUSUM statistic g of `ResidualCusum(*cusum)` over each flight's raw pitot residual (armed
+    throughout), so saved flights can be re-scored with the current (or any) CUSUM parameters."""
+    out = []
+    for raw in raw_segments:
+        c, g = ResidualCusum(sample_hz, *cusum), np.empty(len(raw))
+        for k, r in enumerate(raw):
+            c.update(r, k / sample_hz)
+            g[k] = c.statistic
+        out.append(g)
+    return out
+
+
 def threshold_table(segments: dict[str, list[np.ndarray]], target_per_hour: float = 1e-3,
                     sample_hz: float = EKF_HZ, tail: str = "auto") -> list[dict]:
-    """`false_alarm.criterion_report` for each criterion of `criteria()` on the fault-free `segments`."""
+    """`false_alarm.criterion_report` for each criterion of `criteria()` on the fault-free `segments`; the
+    CUSUM row is recomputed from the raw residual with the current CUSUM_DEFAULT where it was recorded."""
+    if "pitot_residual_raw" in segments:
+        segments = {**segments, "cusum": cusum_segments(segments["pitot_residual_raw"], sample_hz=sample_hz)}
     rows = []
     for name, signal, threshold, hold, sign in criteria():
         if signal not in segments:
@@ -218,20 +234,26 @@ def _common(parser, episodes: int) -> None:
 
 
 def main_study(args) -> int:
+    config = {"scenario": args.scenario, "episodes": args.episodes, "seed": args.seed, "policy": args.policy,
+              "env_kwargs": args.env_kwargs}
+    done = []
+
     def progress(index, row):
         delays = {name: row[f"delay_{name}"] for name in ALARMS}
         print(f"episode {index} seed {row['seed']}: delays {delays}, false "
               f"{[n for n in ALARMS if row[f'false_alarm_{n}']]}, airborne {row['airborne_time']:.0f} s", flush=True)
+        done.append(row)
+        _write(args.out, done, config)          # after every episode: a long run stopped early keeps its rows
 
     results = study(args.scenario, args.episodes, args.seed, args.policy, args.env_kwargs, progress=progress)
-    result = {"summary": summary(results), "episodes": results,
-              "config": {"scenario": args.scenario, "episodes": args.episodes, "seed": args.seed,
-                         "policy": args.policy, "env_kwargs": args.env_kwargs}}
-    print(json.dumps(result["summary"], indent=1))
-    if args.out:
-        with open(args.out, "w") as f:
-            json.dump(result, f, indent=1)
+    print(json.dumps(summary(results), indent=1))
     return 0
+
+
+def _write(path, results, config) -> None:
+    if path:
+        with open(path, "w") as f:
+            json.dump({"summary": summary(results), "episodes": results, "config": config}, f, indent=1)
 
 
 def main_thresholds(args) -> int:

@@ -210,7 +210,7 @@ register(Scenario(
     description="Quad-plane mission; the pusher RPM sensor reads zero from 45 s, in forward flight (001 Sec. 7.3.2).",
 ))
 # False alarms over many fault-free hours: each episode draws its own mean wind (0-9 m/s, any direction, light
-# turbulence; benchmark.random_wind) and flies three laps (~6.5 min of flight); 100 episodes ~ 10 flight hours.
+# turbulence; benchmark.random_wind) and flies three laps (~4.3 min airborne); 140 episodes ~ 10 flight hours.
 register(Scenario(
     name="qp-no-fault-long",
     env_id=QUADPLANE_AUTOPILOT,

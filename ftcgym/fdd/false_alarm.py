@@ -114,7 +114,11 @@ def _pick_tail(values: np.ndarray, tail: str, tail_count: float) -> str:
         raise ValueError(f"tail: {tail!r}; accepted: {list(TAILS)}")
     if tail != "auto":
         return tail
-    return "empirical" if tail_count >= MIN_TAIL_SAMPLES else "exponential"
+    if tail_count >= MIN_TAIL_SAMPLES:
+        return "empirical"
+    # no tail to fit (e.g. a one-sided signal that is almost always 0): the data are all there is
+    u = np.quantile(values, TAIL_QUANTILE)
+    return "exponential" if np.count_nonzero(values > u) >= MIN_TAIL_SAMPLES else "empirical"
 
 
 def _exponential_tail(values: np.ndarray) -> tuple[float, float, float]:
@@ -156,7 +160,10 @@ def criterion_report(segments, threshold: float, hold_time: float, sample_hz: fl
     n = sequence_length(hold_time, sample_hz)
     p_single = exceedance_probability(values, threshold, tail)
     p_seq = sequence_probability(p_single, n)
-    rho = autocorrelation(segments, max_lag)
+    if np.ptp(values) == 0.0:       # a constant signal (a one-sided one that never leaves 0): nothing correlates
+        rho = np.concatenate([[1.0], np.zeros(max_lag)])
+    else:
+        rho = autocorrelation(segments, max_lag)
     independent = bool(np.all(np.abs(rho[1:]) <= correlation_limit))
     if independent:
         proposed, method = propose_threshold(values, hold_time, sample_hz, target_per_hour, tail), "eq. 40-41"

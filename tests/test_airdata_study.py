@@ -1,0 +1,41 @@
+"""airdata-study scoring and the thresholds table, on synthetic data (no simulation)."""
+import numpy as np
+import pytest
+
+from ftcgym.benchmark import airdata_study as study
+
+
+def status(**alarms):
+    return {"alarm_time_table2": alarms.get("table2"), "alarm_time_cusum": alarms.get("cusum"),
+            "innovation_alarms": {"gnss": alarms.get("gnss"), "pusher_rpm": alarms.get("pusher_rpm")},
+            "table2_criterion": None, "start_time": 1.0}
+
+
+def test_score_delays_false_alarms_and_error_after_detection():
+    t = np.arange(0, 60, 0.01)
+    true = np.full_like(t, 18.0)
+    ekf = true + np.where((t >= 45.0) & (t < 45.2), 3.0, 0.0) + np.where(t >= 45.2, 1.0, 0.0)
+    samples = np.column_stack([t, ekf, true, np.full_like(t, np.radians(90)), np.full_like(t, 30.0)])
+    info = {"fdd": {"airdata_ekf": status(gnss=45.1, cusum=30.0)}, "fault": {"kind": "gnss"}, "crashed": False}
+    out = study._score(samples, info, 45.0)
+    assert out["delay_gnss"] == pytest.approx(0.1) and out["false_alarm_cusum"] and out["delay_cusum"] is None
+    assert out["airspeed_error_max_onset_to_detection"] == pytest.approx(3.0)
+    assert out["airspeed_error_max_after_detection"] == pytest.approx(3.0)          # 45.1-45.2 still 3 m/s
+    assert out["airspeed_rmse_before_onset"] == pytest.approx(0.0)
+    s = study.summary([out, {**out, "delay_gnss": 0.3}])
+    assert s["gnss"]["delay_median"] == pytest.approx(0.2) and s["cusum"]["false_alarms"] == 2
+
+
+def test_threshold_table_one_sided_and_round_trip(tmp_path):
+    rng = np.random.default_rng(0)
+    segments = {"pusher_rpm_3_innovation": [rng.normal(-0.05, 0.01, 20_000) for _ in range(3)],
+                "pitot_residual_derivative": [rng.normal(0.0, 4.0, 20_000) for _ in range(3)]}
+    rows = {r["criterion"]: r for r in study.threshold_table(segments)}
+    # one-sided: the innovation sits at -0.05 +- 0.01, so its positive side never nears the threshold
+    assert rows["pusher_rpm[3] norm"]["p_single"] == 0.0
+    assert rows["pitot derivative"]["independent"] and rows["pitot derivative"]["runs_seen"] == 0
+    path = tmp_path / "s.npz"
+    study.save_segments(str(path), segments)
+    loaded = study.load_segments(str(path))
+    assert all(np.array_equal(a, b) for a, b in zip(loaded["pitot_residual_derivative"],
+                                                      segments["pitot_residual_derivative"]))
