@@ -68,6 +68,7 @@ def test_vehicle_overrides_merge_into_the_scenarios_env_kwargs():
     ({"seeds": 3}, r"seeds: must be a list, got 3"),
     ({"policies": ["autopilot-x"]}, r"policies: unknown policies \['autopilot-x'\]; accepted:"),
     ({"parameter_sets": [{"name": "a"}, {"name": "a"}], "grid": {}}, r"names must be unique, repeated: \['a'\]"),
+    ({"parameter_sets": [{"name": "G/2"}]}, r"names must not contain '/': \['G/2'\]"),
 ])
 def test_bad_configs_name_the_field_and_what_it_accepts(change, message):
     with pytest.raises(ValueError, match=message):

@@ -98,6 +98,8 @@ def run_jobs(jobs: list[Job], backend: str = "local", workers: int = 1, *, ray_a
         raise ValueError(f"backend: unknown {backend!r}; accepted: {', '.join(BACKENDS)}")
     if chunk < 1 or retries < 0 or workers < 1:
         raise ValueError(f"chunk and workers must be >= 1 and retries >= 0, got {chunk}, {workers}, {retries}")
+    if not jobs:  # e.g. a resumed sweep with nothing left: start no pool and no Ray instance
+        return []
     if episode is None:
         from ftcgym.benchmark.runner import run_episode as episode  # here: the runner imports this module
     callbacks = callbacks or Callbacks()

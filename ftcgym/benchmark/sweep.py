@@ -117,6 +117,8 @@ def parse_config(data, where: str = "config") -> SweepConfig:
     sets += _grid_sets(data.get("grid", {}), f"{where}: grid")
     _require(bool(sets), where, "needs parameter_sets or grid (at least one parameter set)")
     names = [s.name for s in sets]
+    slashed = [name for name in names if "/" in name]  # "/" separates the parts of an episode's key
+    _require(not slashed, f"{where}: parameter_sets", f"names must not contain '/': {slashed}")
     duplicates = sorted({name for name in names if names.count(name) > 1})
     _require(not duplicates, f"{where}: parameter_sets", f"names must be unique, repeated: {duplicates}")
     return SweepConfig(
@@ -344,9 +346,9 @@ def main(args, argv: list[str]) -> int:
     wall = time.perf_counter() - started
     journal = EpisodeJournal(out)
     run = {"command": shlex.join(["ftcgym", *argv]), "backend": args.backend, "workers": args.workers,
-           "wall_time_s": wall, "retried_attempts": len(journal.failures())}
+           "wall_time_s": wall, "failed_attempts": len(journal.failures())}
     table = write_sweep_report(out, config, rows, run)
     print(table)
     print(f"\n{len(rows)} episodes ({len(config.parameter_sets)} sets) in {wall:.1f} s; "
-          f"{run['retried_attempts']} failed attempt(s) retried; wrote results to {out}")
+          f"{run['failed_attempts']} failed attempt(s) in failures.jsonl; wrote results to {out}")
     return 0
