@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from ftcgym.benchmark import metrics
-from ftcgym.benchmark.report import format_table, format_value
+from ftcgym.benchmark.report import format_table, format_value, latency_samples, plot_latencies
 from ftcgym.benchmark.runner import episode_seed, roll_out, run_benchmark, score_episode
 from ftcgym.benchmark.scenarios import get_scenario
 from ftcgym.cli import main
@@ -118,6 +118,18 @@ def test_summary_of_fault_free_episodes_without_a_detector():
     assert [(row["policy"], row["episodes"], row["success_rate"], row["crash_rate"]) for row in summary] == [
         ("a", 2, 0.5, 0.5), ("b", 1, 0.0, 1.0)]
     assert all(summary[0][field] is None for field in DESIGN_SUMMARY_FIELDS[3:10])
+
+
+def test_latency_histograms_take_detected_and_recovered_fault_episodes(tmp_path):
+    rows = [episode(policy="a", fault_onset=2.0, detection_delay=0.05, recovery_time=2.9),
+            episode(policy="a", fault_onset=3.0, detection_delay=0.07, recovery_time=None),
+            episode(policy="a", fault_onset=4.0, detection_delay=None, recovery_time=None),
+            episode(policy="a"),                                   # fault-free: not counted
+            episode(policy="b", fault_onset=2.5, detection_delay=0.06, recovery_time=3.1)]
+    n, delays, latencies = latency_samples(rows, "a")
+    assert (n, delays) == (3, [0.05, 0.07]) and latencies == pytest.approx([0.9])
+    assert latency_samples(rows, "b")[2] == pytest.approx([0.6])
+    assert plot_latencies(tmp_path / "s-latency.png", "s", rows).stat().st_size > 0
 
 
 def test_table_cells():

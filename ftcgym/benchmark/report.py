@@ -79,6 +79,8 @@ def write_report(out_dir, summary: list[dict], episodes: list[dict], config: dic
         event = next((e for e in of_scenario if e["trajectory"].get("event")), None)
         if event is not None:
             plots.append(plot_event(out_dir / f"{name}-event.png", event))
+        if any(e["fault_onset"] is not None for e in of_scenario):
+            plots.append(plot_latencies(out_dir / f"{name}-latency.png", name, of_scenario))
     paths.append(write_markdown(out_dir / "report.md", summary, config, plots))
     return paths + plots
 
@@ -108,8 +110,10 @@ def write_markdown(path: Path, summary: list[dict], config: dict, plots: list[Pa
         "overrides: " + (f"`{json.dumps(config['env_overrides'])}`" if config["env_overrides"] else "none") + ".",
         "## Scenarios", "\n".join(scenario_lines),
         "## Summary", markdown_table(summary), DEFINITIONS,
-        "## Plots", "Altitude and horizontal path of every episode; dotted lines mark fault onsets, "
-        "dashed black lines the reference.", "\n\n".join(plot_lines),
+        "## Plots", "Altitude and horizontal path of every episode (dotted lines mark fault onsets, "
+        "dashed black lines the reference); for scenarios with faults, histograms of the detection delay "
+        "and the recovery latency, and the time history of one episode around the fault.",
+        "\n\n".join(plot_lines),
     ])
     path.write_text(text + "\n")
     return path
@@ -138,6 +142,35 @@ def plot_scenario(path: Path, scenario: str, episodes: list[dict]) -> Path:
     path_axes.set_aspect("equal", adjustable="datalim")
     figure.savefig(path, dpi=100)
     return path
+
+
+def plot_latencies(path: Path, scenario: str, episodes: list[dict]) -> Path:
+    """Histograms of the detection delay and the recovery latency (recovery time - onset), by policy."""
+    figure = Figure(figsize=(10, 3.2), layout="constrained")
+    delay_axes, recovery_axes = figure.subplots(1, 2)
+    policies = dict.fromkeys(episode["policy"] for episode in episodes)
+    for i, policy in enumerate(policies):
+        n_faults, delays, latencies = latency_samples(episodes, policy)
+        for axes, values in ((delay_axes, delays), (recovery_axes, latencies)):
+            if values:
+                axes.hist(values, bins=20, color=f"C{i % 10}", alpha=0.6,
+                          label=f"{policy} (n={len(values)}/{n_faults})")
+    delay_axes.set(title=f"{scenario}: detection delay", xlabel="alarm - onset (s)", ylabel="episodes")
+    recovery_axes.set(title="recovery latency", xlabel="recovery time - onset (s)")
+    for axes in (delay_axes, recovery_axes):
+        if axes.has_data():
+            axes.legend(fontsize="small")
+    figure.savefig(path, dpi=100)
+    return path
+
+
+def latency_samples(episodes: list[dict], policy: str) -> tuple[int, list[float], list[float]]:
+    """(fault episodes, detection delays, recovery latencies) of `policy`; undetected or unrecovered
+    episodes add no sample."""
+    mine = [e for e in episodes if e["policy"] == policy and e["fault_onset"] is not None]
+    delays = [e["detection_delay"] for e in mine if e["detection_delay"] is not None]
+    latencies = [e["recovery_time"] - e["fault_onset"] for e in mine if e["recovery_time"] is not None]
+    return len(mine), delays, latencies
 
 
 def plot_event(path: Path, episode: dict) -> Path:
