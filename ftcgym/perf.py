@@ -71,7 +71,7 @@ def measure(env_id: str, env_kwargs: dict, actor: str, steps: int, seed: int) ->
 
 
 #: the vehicle each detector is made for (default: the quadrotor)
-DETECTOR_ENV = {"airdata_ekf": QUADPLANE}
+DETECTOR_ENV = {"airdata_ekf": QUADPLANE, "propulsion_bayes": QUADPLANE}
 
 
 def detector_costs(steps: int, seed: int) -> dict:

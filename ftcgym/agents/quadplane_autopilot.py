@@ -19,7 +19,9 @@ Structure, per agent step:
    (model inversion with the airframe's own aerodynamic moment at the given airspeed), allocated over the
    hover rotors and the surfaces by regularised weighted least squares; the surfaces' columns come from the
    model at the given airspeed (so they vanish at a zero reading).
-5. Pusher: PI on the given airspeed toward the phase's target with the trim throttle as feed-forward.
+5. Pusher: PI on the given airspeed toward the phase's target with the trim throttle as feed-forward; in
+   cruise the target is the task's cruise airspeed plus `airspeed_offset` (0 unless a detector asks for an
+   airspeed step, 003 Sec. III-D: `QuadPlaneAutopilotEnv.request_airspeed_offset`).
 """
 from __future__ import annotations
 
@@ -119,6 +121,7 @@ class QuadPlaneAutopilot:
         self._course_angle = None
         self._swept = 0.0
         self.airspeed_used = 0.0
+        self.airspeed_offset = 0.0               # m/s added to the cruise airspeed target (an excitation request)
         self.target = np.array([0.0, 0.0, -self.task.altitude])
 
     # ------------------------------------------------------------------ public
@@ -390,7 +393,7 @@ class QuadPlaneAutopilot:
         elif self.phase == "transition":
             wanted = 1.0
         else:
-            error = self.task.cruise_airspeed - airspeed
+            error = self.task.cruise_airspeed + self.airspeed_offset - airspeed
             self._throttle_integral = float(np.clip(self._throttle_integral + g.airspeed_i * error * self.dt, -0.3, 0.3))
             wanted = float(np.clip(self._cruise_throttle() + g.airspeed_p * error + self._throttle_integral, 0.0, 1.0))
         step = g.throttle_slew * self.dt

@@ -111,6 +111,7 @@ def rms(values) -> float | None:
 #: what a detector must name to isolate a fault whose `target` is not its channel (a pitot blockage's target
 #: is its mode, "zero" or "stuck"; the detector names the sensor)
 ISOLATION_TARGETS = {"pitot_blockage": "pitot"}
+ISOLATION_TARGETS.update({kind: kind for kind in ("propeller_icing", "viscous_friction", "static_friction")})  # propulsion_bayes names the mode
 ISOLATION_TARGETS.update({"gnss": "gnss", "pusher_rpm_sensor": "pusher_rpm"})   # airdata_ekf innovation detectors
 
 

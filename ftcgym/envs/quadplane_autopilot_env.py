@@ -8,7 +8,8 @@ Same kwargs, observation and `info` contract as QuadPlane-v0, plus the observati
 non-finite or wrongly shaped action raises ValueError. Reward per step: 1 - min(|a - V_true|, 10) / 10 (how
 well the airspeed fed matches the truth; a policy sees only sensors), -100 on a crash. The episode
 terminates when the mission ends on the ground (`landed`) or on a crash; truncated after
-`max_episode_seconds`.
+`max_episode_seconds`. `request_airspeed_offset(dv)` shifts the cruise airspeed target by dv m/s (a
+detector's excitation request, 003 Sec. III-D).
 """
 from __future__ import annotations
 
@@ -20,6 +21,7 @@ from ..agents.quadplane_autopilot import PHASES, QuadPlaneAutopilot
 from .quadplane import CRASH_PENALTY, QuadPlaneEnv
 
 MAX_AIRSPEED_ACTION = 60.0   # m/s
+MAX_AIRSPEED_OFFSET = 6.0    # m/s, largest cruise-setpoint change a detector may ask for (stays above stall, below 24 m/s)
 
 
 class QuadPlaneAutopilotEnv(gym.Env):
@@ -53,6 +55,14 @@ class QuadPlaneAutopilotEnv(gym.Env):
         truncated = truncated and not terminated
         reward = -CRASH_PENALTY if info["crashed"] else 1.0 - min(abs(airspeed - info["truth"]["airspeed"]), 10.0) / 10.0
         return self._observe(obs), float(reward), terminated, truncated, self._augment(info)
+
+    def request_airspeed_offset(self, offset: float) -> None:
+        """Add `offset` m/s (clipped to +-MAX_AIRSPEED_OFFSET) to the autopilot's cruise airspeed target until
+        the next request or reset: the excitation a detector asks for (003 Sec. III-D; `fdd.propulsion_bayes`).
+        Only the cruise phase uses it; a non-finite offset raises ValueError."""
+        if not np.isfinite(offset):
+            raise ValueError(f"airspeed offset: must be finite, got {offset!r}")
+        self.autopilot.airspeed_offset = float(np.clip(offset, -MAX_AIRSPEED_OFFSET, MAX_AIRSPEED_OFFSET))
 
     def _observe(self, obs: dict) -> dict:
         return {**obs, "mission_phase": np.array([float(PHASES.index(self.autopilot.phase))])}

@@ -21,6 +21,7 @@ DETECTORS = {
     "aekf": "ftcgym.fdd.aekf:aekf_wrapper",
     "iv_change": "ftcgym.fdd.iv_change:iv_change_wrapper",
     "airdata_ekf": "ftcgym.fdd.airdata_ekf:airdata_ekf_wrapper",
+    "propulsion_bayes": "ftcgym.fdd.propulsion_bayes:propulsion_bayes_wrapper",
 }
 
 

@@ -1,0 +1,138 @@
+"""propulsion_bayes (003 Sec. III): the per-mode Kalman filters, the Bayes filter with its Markov priors,
+input checks, and detection + isolation on synthetic data from 003 eq. (1)-(5) with the airspeed step in the
+loop (a few seconds; the closed-loop figures come from `ftcgym bench --scenario qp-propulsion-*`)."""
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import ftcgym  # noqa: F401  (registers the env ids)
+from ftcgym.benchmark.metrics import isolation_target
+from ftcgym.envs.pusher import steady_state_current
+from ftcgym.envs.vsqp import VSQP
+from ftcgym.fdd import wrap_with_detector
+from ftcgym.fdd.propulsion_bayes import (FAULT_PRIOR, HEALTH_PRIOR, MODES, BayesFilter, PropulsionBayesDetector,
+                                         PropulsionModel, ScalarKalmanFilter)
+
+FAULT_HANDLES = {"propeller_icing": "theta_1", "viscous_friction": "c_v", "static_friction": "I_0"}
+
+
+def synthetic_flight(detector, seconds, fault=None, onset=150.0, factor=1.1, hz=50.0, seed=0,
+                     current_noise=0.0032, speed_noise=0.71, airspeed_noise=0.026):
+    """Feeds `detector` readings of a pusher obeying 003 eq. (1)-(5) exactly (VSQP, 003 Sec. IV-B noise) whose
+    airspeed follows 18 m/s + the detector's request with a 2 s lag and whose speed swings by +-20 and
+    +-30 rad/s at 0.03 and 0.2 Hz, as the quad-plane's airspeed loop makes it in turbulence. The fault steps
+    to `factor` x nominal at `onset`. Returns the detector."""
+    rng = np.random.default_rng(seed)
+    nominal = {"theta_1": 1.0, "c_v": VSQP.pusher_viscous_friction, "I_0": VSQP.pusher_zero_load_current}
+    V, dt = 18.0, 1.0 / hz
+    for k in range(int(seconds * hz)):
+        t = k * dt
+        V += dt / 2.0 * (18.0 + detector.airspeed_request - V)
+        omega = 40.0 * V + 20.0 * math.sin(0.2 * t) + 30.0 * math.sin(1.3 * t)
+        omega_dot = 40.0 * (18.0 + detector.airspeed_request - V) / 2.0 + 4.0 * math.cos(0.2 * t) + 39.0 * math.cos(1.3 * t)
+        values = dict(nominal)
+        if fault is not None and t >= onset:
+            values[FAULT_HANDLES[fault]] *= factor
+        current = steady_state_current(VSQP, omega, V, **values) + VSQP.pusher_inertia * omega_dot / VSQP.pusher_motor_constant
+        readings = {"pusher_speed": [omega + speed_noise * rng.standard_normal()],
+                    "pusher_current": [current + current_noise * rng.standard_normal()],
+                    "pitot_airspeed": [V + airspeed_noise * rng.standard_normal()]}
+        detector.update(readings, t)
+    return detector
+
+
+@pytest.mark.parametrize("mode", [0, 1, 2])
+def test_kalman_filter_converges_to_the_true_fault_parameter(mode):
+    """KF^(i) (eq. 15-24) on eq. (1)-(5) data with x^(i) = 1.1 x^(i)*: the estimate ends within 1% of the truth."""
+    model = PropulsionModel(VSQP, coefficient_error=0.0)
+    rng = np.random.default_rng(1)
+    x_true = model.x_star.copy()
+    x_true[mode] *= 1.1
+    kf = ScalarKalmanFilter(model.x_star[mode], (0.1 * model.x_star[mode]) ** 2, (1e-3 * model.x_star[mode]) ** 2)
+    for k in range(3000):
+        omega, V = 700.0 + 100.0 * math.sin(0.01 * k), 18.0 + 2.0 * math.sin(0.003 * k)
+        C = model.regressors(np.array([omega]), np.array([V]))[0]
+        y = float(C @ x_true) + 1e-4 * rng.standard_normal()                  # eq. (11) with the erratum's y
+        offset = float(C @ model.x_star) - C[mode] * model.x_star[mode]        # eq. (16)
+        kf.step(y, C[mode], offset, 1e-8)
+    assert kf.x == pytest.approx(x_true[mode], rel=0.01)
+    assert abs(kf.x - model.x_star[mode]) > 0.09 * model.x_star[mode]
+
+
+def test_bayes_filter_matches_eq_29_by_hand_and_restarts_from_the_markov_prior():
+    bf = BayesFilter(HEALTH_PRIOR, window=3)
+    np.testing.assert_allclose(bf.probabilities, [2.0 / 3.0, 1.0 / 3.0])        # eq. (32)
+    S = 0.5
+    nus = [(0.3, 0.1), (0.4, -0.2)]
+    p = np.array(HEALTH_PRIOR)
+    for nu in nus:
+        assert bf.update(nu, S) is None
+        p = p * np.exp(-0.5 * np.square(nu) / S) / np.sqrt(2 * np.pi * S)       # eq. (29) numerator
+        p = p / p.sum()
+        np.testing.assert_allclose(bf.probabilities, p, rtol=1e-12)
+        assert bf.probabilities.sum() == pytest.approx(1.0)
+    assert bf.update((5.0, 0.0), S) == 1                                        # window end: the argmax
+    np.testing.assert_allclose(bf.probabilities, [2.0 / 3.0, 1.0 / 3.0])        # restarted from the prior
+    iso = BayesFilter(FAULT_PRIOR, window=10)
+    np.testing.assert_allclose(iso.probabilities, [0.25] * 4)                   # eq. (33)
+    iso.update([1.0, 0.0, 2.0, 3.0], 1.0)
+    assert iso.probabilities.sum() == pytest.approx(1.0)
+    assert np.argmax(iso.probabilities) == 1
+
+
+def test_prior_alone_decides_equal_likelihoods():
+    """With identical innovations the posterior stays at the prior: eq. (32) favours 'healthy' 2:1."""
+    bf = BayesFilter(HEALTH_PRIOR, window=5)
+    winners = [bf.update((0.2, 0.2), 1.0) for _ in range(5)]
+    assert winners[-1] == 0
+
+
+def test_bad_reading_raises_naming_the_key():
+    det = PropulsionBayesDetector(VSQP, 100.0)
+    with pytest.raises(ValueError, match="pusher_current"):
+        det.update({"pusher_speed": [700.0], "pusher_current": [float("nan")], "pitot_airspeed": [18.0]}, 0.0)
+    with pytest.raises(ValueError, match="pitot_airspeed"):
+        det.update({"pusher_speed": [700.0], "pusher_current": [15.0], "pitot_airspeed": [float("inf")]}, 0.0)
+
+
+def test_model_error_scales_the_coefficients():
+    exact, wrong = PropulsionModel(VSQP, 0.0), PropulsionModel(VSQP, 0.1)
+    assert wrong.k_e == pytest.approx(1.1 * exact.k_e)
+    assert wrong.x_star[2] == pytest.approx(1.1 * VSQP.pusher_zero_load_current)
+    assert wrong.nominal_torque(700.0, 18.0) == pytest.approx(1.1 * exact.nominal_torque(700.0, 18.0))
+
+
+@pytest.mark.parametrize("fault", [None, "propeller_icing", "viscous_friction", "static_friction"])
+def test_detects_and_isolates_on_synthetic_data(fault):
+    """003's noise levels, its 10% faults (as steps at 150 s), a detector with a 10% model error: calibrated,
+    no alarm before onset, detection within 40 s, the right mode isolated."""
+    # +4 m/s: the synthetic pusher has no speed limit to stay clear of (the default +3 does in the circuit)
+    det = synthetic_flight(PropulsionBayesDetector(VSQP, 50.0, perturbation=4.0), 300.0 if fault else 250.0, fault)
+    status = det.status()
+    assert det.x_star[0] == pytest.approx(1.0, abs=0.01)                    # re-fitted from theta_1* = 1
+    assert det.x_star[2] == pytest.approx(VSQP.pusher_zero_load_current, rel=0.02)  # the model said 1.1 A
+    if fault is None:
+        assert not status["alarm"]
+        return
+    assert 150.0 < status["alarm_time"] <= 190.0
+    assert status["isolated"] == fault and MODES.index(fault) == det.hypothesis
+
+
+def test_wrapper_passes_the_airspeed_request_to_the_autopilot():
+    env = wrap_with_detector("propulsion_bayes", gym.make("ftcgym/QuadPlaneAutopilot-v0", max_episode_seconds=5))
+    obs, _ = env.reset(seed=0)
+    assert "fdd/propulsion_bayes/p_fault_detect" in obs and env.observation_space.contains(obs)
+    env.unwrapped.autopilot.airspeed_offset = 1.0
+    env.step(np.array([0.0], dtype=np.float32))
+    assert env.unwrapped.autopilot.airspeed_offset == 0.0            # the detector asks for nothing yet
+    env.detector.airspeed_request = 4.0
+    obs, *_ = env.step(np.array([0.0], dtype=np.float32))
+    assert env.unwrapped.autopilot.airspeed_offset == 4.0
+    env.close()
+
+
+def test_benchmark_isolation_target_is_the_mode_name():
+    for kind in ("propeller_icing", "viscous_friction", "static_friction"):
+        assert isolation_target(kind, None) == kind
