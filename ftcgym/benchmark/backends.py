@@ -15,6 +15,7 @@ Each attempt past the first counts against `retries`; an episode that still fail
 """
 from __future__ import annotations
 
+import argparse
 import sys
 import traceback
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -78,7 +79,6 @@ def add_backend_arguments(parser) -> None:
 
 def _int_at_least(minimum: int) -> Callable[[str], int]:
     def parse(text: str) -> int:
-        import argparse
         if not text.lstrip("-").isdigit() or int(text) < minimum:
             raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}, got {text!r}")
         return int(text)
@@ -91,8 +91,8 @@ def run_jobs(jobs: list[Job], backend: str = "local", workers: int = 1, *, ray_a
     """Run every job; return the rows in job order. Raises EpisodesFailed after the others finished.
 
     `episode(scenario, policy, seed, env_overrides) -> row` (default `runner.run_episode`) must be a
-    module-level function: it is pickled to the workers. Without `keep_trajectory` the rows lose "trajectory" in the worker, which saves moving
-    it between processes when only the metrics are wanted.
+    module-level function: it is pickled to the workers. Without `keep_trajectory` the rows lose
+    "trajectory" in the worker, which saves moving it between processes when only the metrics are wanted.
     """
     if backend not in BACKENDS:
         raise ValueError(f"backend: unknown {backend!r}; accepted: {', '.join(BACKENDS)}")

@@ -84,8 +84,9 @@ def plot_detections(path: Path, summary: list[dict], title: str) -> Path:
     x = np.arange(len(summary))
     figure = Figure(figsize=(max(6.0, 0.45 * len(summary) + 2.0), 4.0), layout="constrained")
     axes = figure.add_subplot()
-    axes.bar(x - 0.2, [row["missed"] for row in summary], 0.4, label="missed detections")
-    axes.bar(x + 0.2, [row["false_alarms"] for row in summary], 0.4, label="flights with a false alarm")
+    for offset, key, label in ((-0.2, "missed", "missed detections"), (0.2, "false_alarms", "flights with a false alarm")):
+        bars = axes.bar(x + offset, [row[key] for row in summary], 0.4, label=label)
+        axes.bar_label(bars, fontsize=7)  # a zero is a result too: label it, as an empty axis says nothing
     axes.set_xticks(x, [row["parameter_set"] for row in summary], rotation=60, ha="right")
     axes.set_ylabel("flights")
     faults, flights = summary[0]["fault_flights"], summary[0]["flights"]
