@@ -16,7 +16,10 @@ Each attempt past the first counts against `retries`; an episode that still fail
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+import threading
+import time
 import traceback
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -175,7 +178,7 @@ def _run_in_process(work: _Work, index: int) -> None:
 def _pool_round(work: _Work, todo: list[int], attempts: list[int], workers: int) -> list[int]:
     """Run `todo` in one pool, resubmitting episodes that raised; return those a broken pool took down."""
     broken: list[int] = []
-    pool = ProcessPoolExecutor(workers)
+    pool = ProcessPoolExecutor(workers, initializer=_exit_with_parent, initargs=(os.getpid(),))
     running: dict = {}
 
     def submit(index: int) -> None:
@@ -208,6 +211,17 @@ def _pool_round(work: _Work, todo: list[int], attempts: list[int], workers: int)
         raise
     pool.shutdown()
     return broken
+
+
+def _exit_with_parent(parent: int) -> None:
+    """Pool worker initializer: end this worker once its parent is gone. A driver killed outright (SIGKILL,
+    the OOM killer) cannot shut its pool down, and the workers would otherwise wait on its queue forever."""
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(1.0)
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True, name="exit-with-parent").start()
 
 
 def _describe(error: BaseException) -> str:
