@@ -63,6 +63,7 @@ from collections import deque
 import numpy as np
 from scipy import signal
 
+from .base import model_with_error
 from .pitot_detection import CUSUM_DEFAULT, TABLE_2_DERIVATIVE, TABLE_2_NORM, PitotResidualDetector, ResidualCusum
 
 GRAVITY = 9.81
@@ -165,12 +166,7 @@ class ComponentForceModel:
     """
 
     def __init__(self, params, coefficient_error: float = 0.10, error_seed: int | None = None):
-        if not (math.isfinite(coefficient_error) and -1.0 < coefficient_error < 1.0):
-            raise ValueError(f"coefficient_error: must be in (-1, 1), got {coefficient_error!r}")
-        rng = None if error_seed is None else np.random.default_rng(error_seed)
-        self.scale = {name: 1.0 + coefficient_error * (1.0 if rng is None else float(rng.choice((-1.0, 1.0))))
-                      for name in ERROR_COEFFICIENTS}
-        c = {name: np.asarray(getattr(params, name), dtype=float) * self.scale[name] for name in ERROR_COEFFICIENTS}
+        self.scale, c = model_with_error(params, ERROR_COEFFICIENTS, coefficient_error, error_seed)
         p = params
         self.mass, self.rho = float(p.mass), float(p.air_density)
         self.fuselage_cda = c["fuselage_drag_area"]

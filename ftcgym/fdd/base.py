@@ -50,3 +50,15 @@ class AlarmLatch:
 
     def status(self) -> dict:
         return {"alarm": self.alarm, "alarm_time": self.alarm_time, "isolated": self.isolated}
+
+
+def model_with_error(params, names, coefficient_error: float = 0.10, error_seed: int | None = None):
+    """A detector's copy of the plant coefficients `names` read from `params` (issue 6: a detector must not
+    know the plant exactly): each multiplied by 1 + coefficient_error (error_seed None) or by 1 +-
+    coefficient_error with a seeded random sign. Returns (scale, coefficients), dicts keyed by name."""
+    if not (np.isfinite(coefficient_error) and -1.0 < coefficient_error < 1.0):
+        raise ValueError(f"coefficient_error: must be in (-1, 1), got {coefficient_error!r}")
+    rng = None if error_seed is None else np.random.default_rng(error_seed)
+    scale = {name: 1.0 + coefficient_error * (1.0 if rng is None else float(rng.choice((-1.0, 1.0))))
+             for name in names}
+    return scale, {name: np.asarray(getattr(params, name), dtype=float) * scale[name] for name in names}

@@ -47,7 +47,7 @@ import math
 
 import numpy as np
 
-from .base import AlarmLatch
+from .base import AlarmLatch, model_with_error
 from .wrapper import DetectorWrapper
 
 MODES = ("no_fault", "propeller_icing", "viscous_friction", "static_friction")   # 003 Sec. II-B, m = 0..3
@@ -65,12 +65,7 @@ class PropulsionModel:
     None) or 1 +- coefficient_error with seeded random signs. rho and D are exact (atmosphere, geometry)."""
 
     def __init__(self, params, coefficient_error: float = 0.10, error_seed: int | None = None):
-        if not (math.isfinite(coefficient_error) and -1.0 < coefficient_error < 1.0):
-            raise ValueError(f"coefficient_error: must be in (-1, 1), got {coefficient_error!r}")
-        rng = None if error_seed is None else np.random.default_rng(error_seed)
-        self.scale = {name: 1.0 + coefficient_error * (1.0 if rng is None else float(rng.choice((-1.0, 1.0))))
-                      for name in ERROR_COEFFICIENTS}
-        c = {name: np.asarray(getattr(params, name), dtype=float) * self.scale[name] for name in ERROR_COEFFICIENTS}
+        self.scale, c = model_with_error(params, ERROR_COEFFICIENTS, coefficient_error, error_seed)
         self.rho, self.D = float(params.air_density), float(params.pusher_diameter)
         self.cq = c["pusher_torque_coefficients"]
         self.k_e, self.Theta = float(c["pusher_motor_constant"]), float(c["pusher_inertia"])
