@@ -191,24 +191,17 @@ register(Scenario(
 # EKF fault tolerance (issue 6 part 3, 001 Sec. 7.3): a sensor the EKF uses reads zero in forward flight; scored on
 # the airdata_ekf innovation detectors (isolated "gnss" / "pusher_rpm"); airspeed-switch must not switch on them.
 SENSOR_FAULT_POLICIES = ("airspeed-switch", "oracle-airspeed")
-register(Scenario(
-    name="qp-gnss-fault",
-    env_id=QUADPLANE_AUTOPILOT,
-    env_kwargs={**_QP_MISSION, "faults": [{"kind": "gnss", "time": 45.0}]},
-    policies=SENSOR_FAULT_POLICIES,
-    episodes=2,
-    detector="airdata_ekf",
-    description="Quad-plane mission; the GNSS velocity reads zero from 45 s, in forward flight (001 Sec. 7.3.1).",
-))
-register(Scenario(
-    name="qp-rpm-sensor-fault",
-    env_id=QUADPLANE_AUTOPILOT,
-    env_kwargs={**_QP_MISSION, "faults": [{"kind": "pusher_rpm_sensor", "time": 45.0}]},
-    policies=SENSOR_FAULT_POLICIES,
-    episodes=2,
-    detector="airdata_ekf",
-    description="Quad-plane mission; the pusher RPM sensor reads zero from 45 s, in forward flight (001 Sec. 7.3.2).",
-))
+for _name, _kind, _sensor, _section in (("qp-gnss-fault", "gnss", "GNSS velocity", "7.3.1"),
+                                       ("qp-rpm-sensor-fault", "pusher_rpm_sensor", "pusher RPM sensor", "7.3.2")):
+    register(Scenario(
+        name=_name,
+        env_id=QUADPLANE_AUTOPILOT,
+        env_kwargs={**_QP_MISSION, "faults": [{"kind": _kind, "time": 45.0}]},
+        policies=SENSOR_FAULT_POLICIES,
+        episodes=2,
+        detector="airdata_ekf",
+        description=f"Quad-plane mission; the {_sensor} reads zero from 45 s, in forward flight (001 Sec. {_section}).",
+    ))
 # False alarms over many fault-free hours: each episode draws its own mean wind (0-9 m/s, any direction, light
 # turbulence; benchmark.random_wind) and flies three laps (~4.3 min airborne); 140 episodes ~ 10 flight hours.
 register(Scenario(
