@@ -39,3 +39,10 @@ def test_threshold_table_one_sided_and_round_trip(tmp_path):
     loaded = study.load_segments(str(path))
     assert all(np.array_equal(a, b) for a, b in zip(loaded["pitot_residual_derivative"],
                                                       segments["pitot_residual_derivative"]))
+
+
+def test_fly_rolls_out_a_short_episode_and_scores_it():
+    out = study.fly("qp-gnss-fault", seed=1, env_overrides={"max_episode_seconds": 2.0})
+    assert out["flight_time"] == pytest.approx(2.0) and out["crashed"] is False
+    assert out["fault_onset"] is None and out["alarm_time_gnss"] is None   # the fault comes at 45 s
+    assert 0.0 < out["ekf_started"] < 2.0 and 0.0 < out["airborne_time"] < 2.0   # started once airborne

@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from ftcgym.benchmark.runner import episode_seed, make_env, policy_view
+from ftcgym.benchmark.runner import episode_seed, make_env, roll_out
 from ftcgym.benchmark.scenarios import get_scenario
 from ftcgym.fdd import false_alarm
 from ftcgym.fdd.airdata_ekf import EKF_HZ, INNOVATION_DETECTORS
@@ -39,23 +39,19 @@ def fly(scenario_name: str, seed: int, policy_name: str = "oracle-airspeed", env
         raise ValueError(f"scenario {scenario_name!r} is not scored on {DETECTOR!r}")
     scenario = dataclasses.replace(scenario, detector_kwargs={**scenario.detector_kwargs, "record": record})
     env = make_env(scenario, env_overrides)
-    try:
-        policy = make_policy(policy_name, env)
-        obs, info = env.reset(seed=seed)
-        mean_wind = info.get("mean_wind")
-        policy.reset(obs, policy_view(info, policy))
-        rows, onset = [], None
-        while True:
-            rows.append(_sample(obs, info))
-            onset = onset if onset is not None else info["fault"]["onset_time"]
-            obs, _, terminated, truncated, info = env.step(policy.act(obs, policy_view(info, policy)))
-            if terminated or truncated:
-                break
+    rows, seen = [], {}
+
+    def keep(obs, info):
         rows.append(_sample(obs, info))
-        onset = onset if onset is not None else info["fault"]["onset_time"]
+        seen.setdefault("reset", info)
+        seen["last"] = info
+    try:
+        log = roll_out(env, make_policy(policy_name, env), seed, DETECTOR, on_step=keep)
         trace = env.get_wrapper_attr("detector").trace if record else None
     finally:
         env.close()
+    mean_wind, info = seen["reset"].get("mean_wind"), seen["last"]
+    onset = log.fault["onset_time"] if log.fault is not None else None
     result = _score(np.array(rows), info, onset)
     result.update(seed=int(seed), scenario=scenario_name, policy=policy_name, mean_wind=mean_wind)
     if record:

@@ -137,18 +137,23 @@ class _Recorder:
                           **{name: np.array(values) for name, values in self.quadplane.items()})
 
 
-def roll_out(env: gym.Env, policy, seed: int, detector: str | None = None) -> EpisodeLog:
-    """Fly one episode of `policy` in `env` from `env.reset(seed=seed)` and record it."""
+def roll_out(env: gym.Env, policy, seed: int, detector: str | None = None, on_step=None) -> EpisodeLog:
+    """Fly one episode of `policy` in `env` from `env.reset(seed=seed)` and record it; `on_step(obs, info)`,
+    if given, sees every recorded step too (the reset first, the final step last)."""
     obs, info = env.reset(seed=seed)
     policy.reset(obs, policy_view(info, policy))
     recorder = _Recorder(detector)
     while True:
         action = policy.act(obs, policy_view(info, policy))
         recorder.record(info, thrust_axis_reference(policy), obs)
+        if on_step is not None:
+            on_step(obs, info)
         obs, _, terminated, truncated, info = env.step(action)
         if terminated or truncated:
             break
     recorder.record(info, thrust_axis_reference(policy), obs)
+    if on_step is not None:
+        on_step(obs, info)
     return recorder.finish(info)
 
 
