@@ -20,6 +20,10 @@ POLICY_DESCRIPTIONS = {
     "airspeed-switch": "QuadPlaneAutopilot-v0: the pitot reading until the airdata_ekf pitot alarm, then the EKF "
                        "airspeed; needs the airdata_ekf detector",
     "synthetic-only": "QuadPlaneAutopilot-v0: always the airdata_ekf EKF airspeed; needs the airdata_ekf detector",
+    "learned-spin": "shipped SB3 policy (task rotor-loss-recovery): nominal until the loe_kalman alarm, then "
+                    "motor commands from the trained model; needs the loe_kalman detector",
+    "learned-airspeed": "shipped SB3 policy (task airspeed-source) on QuadPlaneAutopilot-v0: the airspeed it feeds "
+                        "the autopilot from the pitot and detector outputs; needs the airdata_ekf detector",
 }
 QUADPLANE_POLICIES = ("autopilot", "pitot-only", "oracle-airspeed", "airspeed-switch", "synthetic-only")
 POLICY_NAMES = tuple(POLICY_DESCRIPTIONS)
@@ -27,6 +31,9 @@ POLICY_NAMES = tuple(POLICY_DESCRIPTIONS)
 
 def make_policy(name: str, env) -> Policy:
     """The named benchmark policy for `env` (a gymnasium env, wrapped or not)."""
+    if name in ("learned-spin", "learned-airspeed"):
+        from ftcgym.training.shipped import load_shipped
+        return load_shipped(name, env)
     base = env.unwrapped
     quadplane = hasattr(base.params, "hover_thrust_coefficient")
     if name in QUADPLANE_POLICIES or quadplane:

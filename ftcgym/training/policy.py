@@ -108,6 +108,19 @@ class LearnedPolicy:
         return np.asarray(action)
 
 
+# env id of a training task -> the policy class that flies its models in the benchmark (`load_policy`)
+POLICY_CLASSES = {TASK_ENV_ID: LearnedPolicy}
+
+
+def load_policy(path, env):
+    """The model saved by `ftcgym train` at `path` as a benchmark policy for `env`, with the policy class
+    of the env id it was trained on (`POLICY_CLASSES`; `LearnedPolicy` for any other id)."""
+    _, _, manifest_path = model_files(path)
+    manifest = json.loads(manifest_path.read_text()) if manifest_path.is_file() else {}
+    env_id = manifest.get("config", {}).get("env_id", TASK_ENV_ID)
+    return POLICY_CLASSES.get(env_id, LearnedPolicy).load(path, env)
+
+
 def _algo_of(model_path: Path) -> str:
     """The algorithm of a model saved without a manifest, from the zip's stored class name."""
     import zipfile
