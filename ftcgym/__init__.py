@@ -8,6 +8,7 @@ _ENVS = {
     "ftcgym/QuadPlane-v0": "ftcgym.envs.quadplane:QuadPlaneEnv",
     "ftcgym/QuadPlaneAutopilot-v0": "ftcgym.envs.quadplane_autopilot_env:QuadPlaneAutopilotEnv",
     "ftcgym/RotorLossRecovery-v0": "ftcgym.training.tasks:RotorLossRecoveryEnv",
+    "ftcgym/AirspeedSource-v0": "ftcgym.training.airspeed_task:AirspeedSourceEnv",
 }
 for _id, _entry in _ENVS.items():
     if _id not in registry:

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ftcgym.training.airspeed_task import ENV_ID as AIRSPEED_ENV_ID, LearnedAirspeedPolicy
 from ftcgym.training.tasks import DETECTOR, recovery_features, to_motor_command
 
 TASK_ENV_ID = "ftcgym/RotorLossRecovery-v0"
@@ -109,7 +110,7 @@ class LearnedPolicy:
 
 
 # env id of a training task -> the policy class that flies its models in the benchmark (`load_policy`)
-POLICY_CLASSES = {TASK_ENV_ID: LearnedPolicy}
+POLICY_CLASSES = {TASK_ENV_ID: LearnedPolicy, AIRSPEED_ENV_ID: LearnedAirspeedPolicy}
 
 
 def load_policy(path, env):
