@@ -42,9 +42,10 @@ class BenchmarkEvalCallback(BaseCallback):
         return True
 
     def evaluate(self) -> dict:
-        from ftcgym.training.policy import LearnedPolicy
+        from ftcgym.training.policy import POLICY_CLASSES, LearnedPolicy
         normalizer = self.model.get_vec_normalize_env()
-        rows = score_policy(lambda env: LearnedPolicy(self.model, normalizer, self.env_id, self.task_kwargs, env),
+        policy_class = POLICY_CLASSES.get(self.env_id, LearnedPolicy)   # the benchmark policy of the task
+        rows = score_policy(lambda env: policy_class(self.model, normalizer, self.env_id, self.task_kwargs, env),
                             self.scenario, self.episodes, self.seed, self.env_overrides)
         summary = metrics.summarize(rows)[0]
         losses = [row["altitude_loss"] for row in rows if row["altitude_loss"] is not None]
