@@ -188,6 +188,13 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _non_negative_int(text: str) -> int:
+    value = int(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text}")
+    return value
+
+
 def _json_object(text: str) -> dict:
     try:
         value = json.loads(text)
@@ -301,8 +308,9 @@ def _add_train(subparsers) -> None:
     parser.add_argument("--algo", type=str.upper, choices=("PPO", "SAC"),
                         help="algorithm (default: the config's default_algo)")
     parser.add_argument("--n-envs", type=_positive_int, metavar="N", help="parallel envs (default: the config's)")
-    parser.add_argument("--total-steps", type=_positive_int, metavar="N",
-                        help="env steps to train for (default: the config's n_timesteps)")
+    parser.add_argument("--total-steps", type=_non_negative_int, metavar="N",
+                        help="env steps to train for after any pre-training (default: the config's n_timesteps; "
+                             "0 with a `pretrain` section: imitation only)")
     parser.add_argument("--seed", type=int, metavar="S", help="seed (default: the config's, else 0)")
     parser.add_argument("--out", metavar="DIR", help="output directory (default: train_out/<task>-<algo>-seed<S>)")
     parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=True,
@@ -320,7 +328,11 @@ def _run_train(args, argv: list[str]) -> int:
 
     out = args.out or os.path.join("train_out", f"{config.task}-{config.algo}-seed{config.seed}")
     manifest = train(config, out, progress=args.progress, command=shlex.join(["ftcgym", *argv]))
-    print(f"{manifest['steps']} steps in {manifest['wall_time_s']:.1f} s ({manifest['steps_per_s']:.0f} steps/s, "
+    if "pretrain" in manifest:
+        last = manifest["pretrain"]["iterations"][-1]
+        print(f"imitation pre-training: {len(manifest['pretrain']['iterations'])} DAgger iterations, "
+              f"{last['samples']} samples in {manifest['pretrain']['wall_time_s']:.1f} s")
+    print(f"{manifest['steps']} steps in {manifest['wall_time_s']:.1f} s ({manifest['steps_per_s'] or 0:.0f} steps/s, "
           f"{config.n_envs} envs); wrote model.zip, manifest.json to {out}")
     return 0
 

@@ -24,6 +24,7 @@ def _config(tmp_path, n_envs=1, steps=1024):
     document = yaml.safe_load(open(load_config("rotor-loss-recovery").source))
     body = document["rotor-loss-recovery"]
     body["env_kwargs"].update(FAST_TASK)
+    body.pop("pretrain")                        # PPO alone here; tests/test_imitation.py covers DAgger
     body["checkpoint_freq"] = 512
     body["eval"] = {"scenario": "quad-rotor-loss-hover", "episodes": 1, "freq": 512, "env_kwargs": SHORT_EVAL}
     body["PPO"].update(n_envs=n_envs, n_timesteps=steps, n_steps=256, batch_size=64, n_epochs=2,
@@ -46,7 +47,7 @@ def test_builtin_config_and_overrides():
     assert "rotor-loss-recovery" in builtin_tasks()
     ppo = load_config("rotor-loss-recovery")
     assert (ppo.algo, ppo.env_id, ppo.policy) == ("PPO", "ftcgym/RotorLossRecovery-v0", "MlpPolicy")
-    assert ppo.hyperparams["n_steps"] == 1024 and "n_envs" not in ppo.hyperparams
+    assert ppo.hyperparams["n_steps"] == 2048 and "n_envs" not in ppo.hyperparams
     sac = load_config("rotor-loss-recovery", algo="sac", n_envs=1, total_steps=10, seed=7)
     assert (sac.algo, sac.n_envs, sac.total_steps, sac.seed) == ("SAC", 1, 10, 7)
     assert "buffer_size" in sac.hyperparams and "n_steps" not in sac.hyperparams

@@ -8,6 +8,7 @@
       checkpoint_freq: 100000               # env steps
       torch_threads: 1                      # torch.set_num_threads for the updates
       eval: {scenario: quad-rotor-loss-hover, episodes: 4, freq: 50000, env_kwargs: {}}
+      pretrain: {method: dagger, env_kwargs: {expert: true}, ...}   # imitation first (imitation.DaggerSettings)
       PPO:                                  # one section per algorithm
         n_envs: 2
         n_timesteps: !!float 3e6
@@ -51,6 +52,7 @@ class TrainConfig:
     checkpoint_freq: int = 100_000
     eval: dict | None = None
     torch_threads: int = 1
+    pretrain: dict | None = None   # imitation pre-training (`imitation.dagger`); env_kwargs added for it
     source: str = ""
 
     def as_dict(self) -> dict:
@@ -95,15 +97,17 @@ def load_config(name_or_path: str, algo: str | None = None, n_envs: int | None =
     normalize = {"norm_obs": True, "norm_reward": True} if normalize is True else (normalize or None)
     config = TrainConfig(
         task=task, env_id=body["env_id"], algo=algo,
-        n_envs=int(n_envs or section.pop("n_envs", 1)), total_steps=int(total_steps or section.pop("n_timesteps")),
+        n_envs=int(n_envs or section.pop("n_envs", 1)),
+        total_steps=int(section.pop("n_timesteps") if total_steps is None else total_steps),
         seed=int(body.get("seed", 0) if seed is None else seed), policy=section.pop("policy", "MlpPolicy"),
         env_kwargs=body.get("env_kwargs") or {}, wrappers=list(body.get("wrappers") or []),
         normalize=normalize, policy_kwargs=section.pop("policy_kwargs", None) or {},
         checkpoint_freq=int(body.get("checkpoint_freq", 100_000)), eval=body.get("eval"),
-        torch_threads=int(body.get("torch_threads", 1)), source=str(path))
+        torch_threads=int(body.get("torch_threads", 1)), pretrain=body.get("pretrain"), source=str(path))
     section.pop("n_envs", None)
     section.pop("n_timesteps", None)
     config.hyperparams = section
-    if config.n_envs < 1 or config.total_steps < 1:
-        raise ValueError(f"n_envs and total steps must be >= 1, got {config.n_envs} and {config.total_steps}")
+    least = 0 if config.pretrain else 1      # a pre-trained policy may ship without RL fine-tuning
+    if config.n_envs < 1 or config.total_steps < least:
+        raise ValueError(f"n_envs must be >= 1 and total steps >= {least}, got {config.n_envs} and {config.total_steps}")
     return config

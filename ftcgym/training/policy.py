@@ -5,6 +5,17 @@ until the `loe_kalman` alarm, then the model on `recovery_features` (normalised 
 VecNormalize statistics), its action rescaled to motor commands and held for the task's `action_repeat`
 steps. For a model trained on another env id it acts on the raw observation at every step.
 Actions are deterministic.
+
+Recovery is scored against the policy's `thrust_axis_reference` (DESIGN.md). A vehicle without one
+propeller recovers into the relaxed hover (Mueller & D'Andrea 2014; 001 App. B), whose thrust axis circles
+the commanded primary axis at the equilibrium's tilt. `axis_reference` picks how the learned policy states
+where its thrust axis belongs after the alarm:
+- "ftc-spin" (default): where `ftc-spin`'s would, from a shadow `SpinRecoveryController` engaged on the
+  isolated rotor that sees every observation and never flies. The two policies are then scored by the same
+  rule: the equilibrium's thrust axis about the primary axis that ftc-spin's position loop commands (it
+  leans up to 20 deg to correct position).
+- "equilibrium": the equilibrium's thrust axis about the vertical, `thrust_axis_reference_for(R, R^T up,
+  n_bar)`; stricter, since leaning to correct position counts as error.
 """
 from __future__ import annotations
 
@@ -16,6 +27,9 @@ from pathlib import Path
 import numpy as np
 
 from ftcgym.training.airspeed_task import ENV_ID as AIRSPEED_ENV_ID, LearnedAirspeedPolicy
+from ftcgym.agents.quadrotor_control import UP
+from ftcgym.agents.spin_recovery import thrust_axis_reference_for
+from ftcgym.geometry import rotation_matrix
 from ftcgym.training.tasks import DETECTOR, recovery_features, to_motor_command
 
 TASK_ENV_ID = "ftcgym/RotorLossRecovery-v0"
@@ -52,8 +66,13 @@ class LearnedPolicy:
 
     detector = DETECTOR
 
+    AXIS_REFERENCES = ("ftc-spin", "equilibrium")
+
     def __init__(self, model, normalizer=None, env_id: str = TASK_ENV_ID, task_kwargs: dict | None = None,
-                 env=None):
+                 env=None, axis_reference: str = "ftc-spin"):
+        if axis_reference not in self.AXIS_REFERENCES:
+            raise ValueError(f"axis_reference: {axis_reference!r}; accepted: {list(self.AXIS_REFERENCES)}")
+        self.axis_reference = axis_reference
         self.model, self.normalizer, self.env_id = model, normalizer, env_id
         self.action_repeat = int((task_kwargs or {}).get("action_repeat", 2)) if env_id == TASK_ENV_ID else 1
         self.nominal = None
@@ -61,13 +80,16 @@ class LearnedPolicy:
             from ftcgym.agents import make_policy
             if env is None:
                 raise ValueError("LearnedPolicy: a rotor-loss-recovery model needs the env (for its nominal controller)")
+            from ftcgym.agents import SpinRecoveryController
             self.nominal = make_policy("nominal", env)
             self.omega_max = env.unwrapped.params.omega_max
+            self._shadow = SpinRecoveryController(env.unwrapped.params, env.unwrapped.agent_hz)
         self.reset()
 
     @classmethod
-    def load(cls, path, env=None) -> "LearnedPolicy":
-        """The model saved by `ftcgym train` at `path` (the output folder or its .zip) for `env`."""
+    def load(cls, path, env=None, **kwargs) -> "LearnedPolicy":
+        """The model saved by `ftcgym train` at `path` (the output folder or its .zip) for `env`; `kwargs`
+        go to the constructor (`axis_reference`)."""
         from ftcgym.training.train import algorithm_class
         model_path, normalizer_path, manifest_path = model_files(path)
         manifest = json.loads(manifest_path.read_text()) if manifest_path.is_file() else {}
@@ -75,15 +97,23 @@ class LearnedPolicy:
         algo = config.get("algo") or _algo_of(model_path)
         model = algorithm_class(algo).load(model_path, device="cpu")
         normalizer = load_normalizer(normalizer_path) if normalizer_path.is_file() else None
-        return cls(model, normalizer, config.get("env_id", TASK_ENV_ID), config.get("env_kwargs"), env)
+        return cls(model, normalizer, config.get("env_id", TASK_ENV_ID), config.get("env_kwargs"), env, **kwargs)
 
     @property
     def thrust_axis_reference(self) -> np.ndarray:
-        return self.nominal.thrust_axis_reference if self.nominal is not None and not self.engaged else \
-            np.array([0.0, 0.0, -1.0])
+        if self.nominal is None:
+            return UP.copy()
+        if not self.engaged:
+            return self.nominal.thrust_axis_reference
+        if self.axis_reference == "ftc-spin":
+            return self._shadow.thrust_axis_reference
+        return thrust_axis_reference_for(self._attitude, self._attitude.T @ UP, self._primary_axis)
 
     def reset(self, obs: dict | None = None, info: dict | None = None) -> None:
         self.engaged, self._steps, self._action = False, 0, None
+        self._attitude, self._primary_axis = np.eye(3), -UP
+        if self.nominal is not None:
+            self._shadow.reset()
         if self.nominal is not None:
             self.nominal.reset(obs, info)
 
@@ -95,7 +125,13 @@ class LearnedPolicy:
             raise ValueError(f"LearnedPolicy needs the env wrapped with the {DETECTOR!r} detector")
         if not self.engaged and not status["alarm"]:
             return self.nominal.act(obs, info)
-        self.engaged = True
+        if not self.engaged:
+            self.engaged = True
+            self._shadow.engage(int(status["isolated"]), obs)
+            self._primary_axis = self._shadow.equilibrium(int(status["isolated"]))["n"]
+        self._attitude = rotation_matrix(obs["attitude"])
+        if self.axis_reference == "ftc-spin":
+            self._shadow.act(obs, info)          # only to keep its reference current; never flown
         if self._steps % self.action_repeat == 0:
             self._action = to_motor_command(self.predict(recovery_features(obs, status, self.omega_max)))
         self._steps += 1

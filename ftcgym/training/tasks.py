@@ -20,6 +20,11 @@ from the nominal controller at the `loe_kalman` alarm after a propeller loss.
   altitude within 0.5 m), the horizontal error x0.5 (a spinning vehicle drifts while it settles); the
   tilt term is dropped, since the relaxed-hover equilibrium without one rotor keeps the body thrust
   axis off the vertical and spins about it (001 App. B). Rewards are computed from the simulator's truth.
+- Expert labels (`expert=True`, for imitation pre-training, `ftcgym.training.imitation`): a shadow
+  `SpinRecoveryController` (the `ftc-spin` recovery, engaged at the alarm on the rotor the detector
+  isolated) sees every simulator step's observation, as it would flying, and `info["expert_action"]` is
+  its command for the observation returned, in the action space's [-1, 1]. It only labels; the agent's
+  action is what flies.
 - Domain randomisation (constructor keywords, drawn per episode from the env's seeded RNG):
   `vehicle` (a name or a list of names), `wind` (a dict, or a list of dicts to draw from, or
   {"mean_speed": [lo, hi], "turbulence": ...} for a random horizontal direction), `onset` ([lo, hi] s),
@@ -94,14 +99,15 @@ class RotorLossRecoveryEnv(gym.Env):
     Keywords: vehicle, wind, onset, failed_rotor (randomisation, module docstring); horizon_seconds (post-
     alarm episode length, default 5); action_repeat (simulator steps per action, default 2); task (the
     quadrotor's task, default "hover"); agent_hz (the quadrotor's control rate, default 500);
-    detector_kwargs (for `loe_kalman`); sensors (the quadrotor's sensor overrides).
+    detector_kwargs (for `loe_kalman`); sensors (the quadrotor's sensor overrides); expert (add
+    `info["expert_action"]`, module docstring).
     """
 
     metadata = {"render_modes": []}
 
     def __init__(self, vehicle="bebop2", wind=None, onset=(2.0, 5.0), failed_rotor="random",
                  horizon_seconds: float = 5.0, action_repeat: int = 2, task="hover", agent_hz: float = 500.0,
-                 detector_kwargs: dict | None = None, sensors: dict | None = None):
+                 detector_kwargs: dict | None = None, sensors: dict | None = None, expert: bool = False):
         self.vehicles = [vehicle] if isinstance(vehicle, str) else list(vehicle)
         self.winds = wind if isinstance(wind, list) else [wind]
         self.onset = _interval(onset, "onset")
@@ -113,6 +119,8 @@ class RotorLossRecoveryEnv(gym.Env):
         self.horizon_seconds, self.action_repeat = float(horizon_seconds), int(action_repeat)
         self.task, self.agent_hz, self.sensors = task, float(agent_hz), sensors
         self.detector_kwargs = dict(detector_kwargs or {})
+        self.expert = bool(expert)
+        self._expert_controller, self._expert_action = None, None
         self.observation_space = spaces.Box(-FEATURE_BOUND, FEATURE_BOUND, (N_FEATURES,), np.float32)
         self.action_space = spaces.Box(-1.0, 1.0, (4,), np.float32)
         self._envs: dict[str, gym.Env] = {}   # one simulator per vehicle, built on first use
@@ -135,6 +143,7 @@ class RotorLossRecoveryEnv(gym.Env):
         for _ in range(self.action_repeat):
             self._obs, _, terminated, truncated, info = self.env.step(command)
             self._info = info
+            self._label_expert()
             reward += recovery_reward(info, command)
             if terminated or truncated:
                 break
@@ -172,7 +181,18 @@ class RotorLossRecoveryEnv(gym.Env):
         self._end_time = info["time"] + self.horizon_seconds
         self._episode = {"vehicle": base.params.name,
                          "failed_rotor": rotor, "onset_time": onset, "alarm_time": info["time"]}
+        if self.expert:
+            from ftcgym.agents import SpinRecoveryController
+            self._expert_controller = SpinRecoveryController(base.params, base.agent_hz)
+            self._expert_controller.engage(info["fdd"][DETECTOR]["isolated"], obs)
+            self._label_expert()
         return True
+
+    def _label_expert(self) -> None:
+        """The shadow expert's command for the current observation (it must see every simulator step)."""
+        if self._expert_controller is not None:
+            command = self._expert_controller.act(self._obs, self._info)
+            self._expert_action = 2.0 * np.asarray(command, dtype=np.float32) - 1.0
 
     def _simulator(self, vehicle: str) -> gym.Env:
         if vehicle not in self._envs:
@@ -187,9 +207,12 @@ class RotorLossRecoveryEnv(gym.Env):
         return recovery_features(self._obs, self._info["fdd"][DETECTOR], self.env.unwrapped.params.omega_max)
 
     def _task_info(self) -> dict:
-        return {"time": self._info["time"], "crashed": self._info["crashed"], **self._episode,
+        info = {"time": self._info["time"], "crashed": self._info["crashed"], **self._episode,
                 "position_error": (np.asarray(self._info["truth"]["position"])
                                    - self._info["reference"]["position"]).tolist()}
+        if self.expert:
+            info["expert_action"] = self._expert_action.copy()
+        return info
 
 
 def _rotor_loss_spec(rotor: int, onset: float):

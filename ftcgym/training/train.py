@@ -6,8 +6,10 @@ benchmark-metric evaluation, a progress bar. TensorBoard logs go to OUT/tb when 
 Writes to OUT:
 
     model.zip, vecnormalize.pkl     the final model and its observation/reward normalisation
-    manifest.json                   command, config, seed, steps, wall time, git commit, versions
+    manifest.json                   command, config, seed, steps, wall time, git commit, versions (and the
+                                    imitation pre-training's per-iteration statistics when the config has one)
     checkpoints/                    model_<steps>_steps.zip, model_vecnormalize_<steps>_steps.pkl
+    pretrained/model.zip, pretrained/vecnormalize.pkl   after imitation pre-training, before RL
     best/model.zip, best/vecnormalize.pkl, evaluations.jsonl   when the config has an `eval` section
     logs/progress.csv               training curves (SB3's logger)
     tb/                             TensorBoard event files (when tensorboard is installed)
@@ -51,15 +53,16 @@ def make_env(env_id: str, env_kwargs: dict, wrappers: list) -> gym.Env:
     return Monitor(env)
 
 
-def build_vec_env(config: TrainConfig):
+def build_vec_env(config: TrainConfig, extra_kwargs: dict | None = None, normalize: bool = True):
     """The config's vectorised (and, if asked, normalised) training env, seeded with config.seed."""
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
 
-    factory = functools.partial(make_env, config.env_id, config.env_kwargs, config.wrappers)
+    factory = functools.partial(make_env, config.env_id, {**config.env_kwargs, **(extra_kwargs or {})},
+                                config.wrappers)
     vec_cls = SubprocVecEnv if config.n_envs > 1 else DummyVecEnv
     venv = vec_cls([factory] * config.n_envs)
     venv.seed(config.seed)
-    if config.normalize:
+    if config.normalize and normalize:
         gamma = config.hyperparams.get("gamma", 0.99)
         venv = VecNormalize(venv, gamma=gamma, **config.normalize)
     return venv
@@ -102,15 +105,49 @@ def train(config: TrainConfig, out: str | Path, progress: bool = True, command: 
     if progress and not sb3_bar:
         callbacks.append(TqdmProgressCallback(config.total_steps))
     started = time.perf_counter()
-    model.learn(config.total_steps, callback=CallbackList(callbacks), progress_bar=sb3_bar)
+    pretraining = None
+    if config.pretrain and config.algo != "PPO":
+        print(f"ftcgym train: the config's imitation pre-training fits PPO's actor-critic; skipped for {config.algo}")
+    elif config.pretrain:
+        pretraining = _pretrain(config, model, venv, out / "pretrained", verbose=progress or verbose)
+    pretrain_time = time.perf_counter() - started
+    if config.total_steps > 0:
+        model.learn(config.total_steps, callback=CallbackList(callbacks), progress_bar=sb3_bar)
     wall_time = time.perf_counter() - started
     model.save(out / MODEL_FILE)
     if config.normalize:
         venv.save(str(out / NORMALIZER_FILE))
     venv.close()
-    manifest = _manifest(config, model, wall_time, command)
+    manifest = _manifest(config, model, wall_time, command, rl_time=wall_time - pretrain_time)
+    if pretraining is not None:
+        manifest["pretrain"] = {"wall_time_s": pretrain_time, "iterations": pretraining}
     (out / MANIFEST_FILE).write_text(json.dumps(manifest, indent=2) + "\n")
     return manifest
+
+
+def _pretrain(config: TrainConfig, model, venv, folder: Path, verbose: bool) -> list[dict]:
+    """Imitation pre-training (`imitation.dagger`) on its own copy of the envs with the section's
+    env_kwargs (the expert's labels); fills the run's VecNormalize observation statistics and saves the
+    pre-trained model to `folder` (model.zip, vecnormalize.pkl) before any RL."""
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from ftcgym.training.imitation import DaggerSettings, dagger
+
+    section = dict(config.pretrain)
+    extra = section.pop("env_kwargs", None) or {}
+    settings = DaggerSettings.from_config(section)
+    expert_venv = build_vec_env(config, extra, normalize=False)
+    normalizer = venv if isinstance(venv, VecNormalize) else None
+    try:
+        history = dagger(model, expert_venv, settings, normalizer, seed=config.seed,
+                         log=print if verbose else (lambda *_: None))
+    finally:
+        expert_venv.close()
+    folder.mkdir(parents=True, exist_ok=True)
+    model.save(folder / MODEL_FILE)
+    if normalizer is not None:
+        normalizer.save(str(folder / NORMALIZER_FILE))
+    return history
 
 
 def configure_logger(folder: str, formats: list[str], tensorboard_folder: str | None):
@@ -123,7 +160,7 @@ def configure_logger(folder: str, formats: list[str], tensorboard_folder: str | 
     return Logger(folder, writers)
 
 
-def _manifest(config: TrainConfig, model, wall_time: float, command: str | None) -> dict:
+def _manifest(config: TrainConfig, model, wall_time: float, command: str | None, rl_time: float) -> dict:
     from importlib import metadata
 
     def version(name):
@@ -141,7 +178,7 @@ def _manifest(config: TrainConfig, model, wall_time: float, command: str | None)
         "total_steps": config.total_steps,
         "steps": int(model.num_timesteps),
         "wall_time_s": wall_time,
-        "steps_per_s": model.num_timesteps / wall_time if wall_time > 0 else None,
+        "steps_per_s": model.num_timesteps / rl_time if rl_time > 0 else None,   # RL steps over RL time
         "git_commit": git_commit(),
         "ftcgym_version": version("ftcgym"),
         "versions": {name: version(name) for name in ("stable-baselines3", "torch", "gymnasium", "pybullet")},
