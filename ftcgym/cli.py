@@ -313,6 +313,9 @@ def _add_train(subparsers) -> None:
                              "0 with a `pretrain` section: imitation only)")
     parser.add_argument("--seed", type=int, metavar="S", help="seed (default: the config's, else 0)")
     parser.add_argument("--out", metavar="DIR", help="output directory (default: train_out/<task>-<algo>-seed<S>)")
+    parser.add_argument("--init-from", metavar="MODEL",
+                        help="start from a saved model (a training output folder or .zip, e.g. a shipped policy's "
+                             "folder) instead of the config's pre-training: fine-tuning")
     parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=True,
                         help="show a progress bar (default: on)")
     parser.set_defaults(run=_run_train)
@@ -327,7 +330,8 @@ def _run_train(args, argv: list[str]) -> int:
     from ftcgym.training.train import train
 
     out = args.out or os.path.join("train_out", f"{config.task}-{config.algo}-seed{config.seed}")
-    manifest = train(config, out, progress=args.progress, command=shlex.join(["ftcgym", *argv]))
+    manifest = train(config, out, progress=args.progress, command=shlex.join(["ftcgym", *argv]),
+                     init_from=args.init_from)
     if "pretrain" in manifest:
         last = manifest["pretrain"]["iterations"][-1]
         print(f"imitation pre-training: {len(manifest['pretrain']['iterations'])} DAgger iterations, "

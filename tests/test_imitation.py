@@ -76,3 +76,28 @@ def test_dagger_pretraining_imitates_the_expert(tmp_path):
                        - labels) ** 2) for model in (trained, untrained)]
     assert errors[0] < 0.1 and errors[0] < errors[1] / 3
     env.close()
+
+
+def test_fine_tuning_starts_from_a_saved_model(tmp_path):
+    from stable_baselines3 import PPO
+
+    from ftcgym.training.policy import load_normalizer
+    from ftcgym.training.shipped import shipped_path
+    from ftcgym.training.train import train
+
+    shipped = shipped_path("learned-spin")
+    config = load_config("rotor-loss-recovery", n_envs=1, total_steps=64)
+    config.env_kwargs = {**config.env_kwargs, **FAST_TASK}
+    config.eval = None
+    config.hyperparams.update(n_steps=64, batch_size=64, n_epochs=1, learning_rate=1e-6)
+    manifest = train(config, tmp_path / "tuned", progress=False, init_from=shipped)
+    assert manifest["init_from"] == str(shipped) and "pretrain" not in manifest
+    features = np.random.default_rng(1).uniform(-1, 1, (16, 38)).astype(np.float32)
+    actions = [PPO.load(folder / "model.zip").predict(load_normalizer(folder / "vecnormalize.pkl").normalize_obs(features),
+                                                      deterministic=True)[0]
+               for folder in (shipped, tmp_path / "tuned")]
+    # one tiny PPO update (lr 1e-6) away from the shipped policy; its observation statistics carried over
+    assert np.max(np.abs(actions[0] - actions[1])) < 0.05
+    config.policy_kwargs = {"net_arch": [32, 32]}
+    with pytest.raises(ValueError, match="init_from"):
+        train(config, tmp_path / "mismatch", progress=False, init_from=shipped)

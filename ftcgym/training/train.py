@@ -69,8 +69,10 @@ def build_vec_env(config: TrainConfig, extra_kwargs: dict | None = None, normali
 
 
 def train(config: TrainConfig, out: str | Path, progress: bool = True, command: str | None = None,
-          verbose: int = 0) -> dict:
-    """Run `config`, write the outputs listed in the module docstring to `out`; returns the manifest."""
+          verbose: int = 0, init_from: str | Path | None = None) -> dict:
+    """Run `config`, write the outputs listed in the module docstring to `out`; returns the manifest.
+    `init_from`: a saved model (folder or .zip, e.g. a shipped policy) whose weights and observation
+    statistics start the run instead of the config's pre-training (fine-tuning)."""
     from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback
 
     from ftcgym.training.callbacks import BenchmarkEvalCallback, TqdmProgressCallback
@@ -106,7 +108,9 @@ def train(config: TrainConfig, out: str | Path, progress: bool = True, command: 
         callbacks.append(TqdmProgressCallback(config.total_steps))
     started = time.perf_counter()
     pretraining = None
-    if config.pretrain and config.algo != "PPO":
+    if init_from is not None:
+        _initialise(model, venv, init_from, config)
+    elif config.pretrain and config.algo != "PPO":
         print(f"ftcgym train: the config's imitation pre-training fits PPO's actor-critic; skipped for {config.algo}")
     elif config.pretrain:
         pretraining = _pretrain(config, model, venv, out / "pretrained", verbose=progress or verbose)
@@ -119,10 +123,33 @@ def train(config: TrainConfig, out: str | Path, progress: bool = True, command: 
         venv.save(str(out / NORMALIZER_FILE))
     venv.close()
     manifest = _manifest(config, model, wall_time, command, rl_time=wall_time - pretrain_time)
+    manifest["init_from"] = str(init_from) if init_from is not None else None
     if pretraining is not None:
         manifest["pretrain"] = {"wall_time_s": pretrain_time, "iterations": pretraining}
     (out / MANIFEST_FILE).write_text(json.dumps(manifest, indent=2) + "\n")
     return manifest
+
+
+def _initialise(model, venv, path, config: TrainConfig) -> None:
+    """Start from the weights and VecNormalize statistics saved at `path` (same algorithm and network);
+    the Gaussian policy's log std is reset to the config's `policy_kwargs.log_std_init` when it sets one."""
+    import torch
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from ftcgym.training.policy import load_normalizer, model_files
+
+    model_path, normalizer_path, _ = model_files(path)
+    saved = algorithm_class(config.algo).load(model_path, device="cpu")
+    try:
+        model.policy.load_state_dict(saved.policy.state_dict())
+    except RuntimeError as error:
+        raise ValueError(f"init_from: {model_path} does not fit the config's {config.algo} network ({error})") from None
+    if isinstance(venv, VecNormalize) and normalizer_path.is_file():
+        venv.obs_rms = load_normalizer(normalizer_path).obs_rms
+    log_std = (config.policy_kwargs or {}).get("log_std_init")
+    if log_std is not None and hasattr(model.policy, "log_std"):
+        with torch.no_grad():
+            model.policy.log_std.fill_(log_std)
 
 
 def _pretrain(config: TrainConfig, model, venv, folder: Path, verbose: bool) -> list[dict]:
