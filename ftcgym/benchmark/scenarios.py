@@ -5,6 +5,7 @@ flown by default, and the detector whose alarm the benchmark scores. Add one wit
 """
 from __future__ import annotations
 
+import importlib.util
 from dataclasses import dataclass, field, replace
 from typing import Callable
 
@@ -16,6 +17,10 @@ LIGHT_TURBULENCE = {"mean": [0.0, 0.0, 0.0], "turbulence": "light"}
 # Rotor-loss scenarios fly the fault-unaware controller, spin recovery on the detector's alarm, and the oracle
 # that switches at the true onset (an upper bound: the gap to ftc-spin is the price of detection).
 ROTOR_LOSS_POLICIES = ("nominal", "ftc-spin", "oracle-spin")
+# The shipped learned policy (issue 7) where it was trained (hover), when SB3 is installed to fly it; it was
+# not trained on manoeuvres and crashes there (10/10, `--seed 500`), so the maneuver scenario leaves it out.
+HOVER_ROTOR_LOSS_POLICIES = ROTOR_LOSS_POLICIES + (
+    ("learned-spin",) if importlib.util.find_spec("stable_baselines3") else ())
 
 
 @dataclass(frozen=True)
@@ -88,7 +93,7 @@ register(Scenario(
     env_id=QUADROTOR,
     env_kwargs={"task": "hover", "max_episode_seconds": 10.0, "wind": LIGHT_TURBULENCE,
                 "faults": "random:rotor_loss"},
-    policies=ROTOR_LOSS_POLICIES,
+    policies=HOVER_ROTOR_LOSS_POLICIES,
     episodes=8,
     detector="loe_kalman",
     description="Quadrotor hover in light turbulence; one random rotor loses its propeller at 2-5 s.",
