@@ -172,7 +172,10 @@ register(Scenario(
     default=True,
 ))
 # Pitot faults (issue 6): scored on the airdata_ekf pitot alarm (001 Sec. 6.1); airspeed-switch flies on it.
-PITOT_FAULT_POLICIES = ("pitot-only", "airspeed-switch", "oracle-airspeed")
+# learned-airspeed (issue 7, task airspeed-source) beside them when SB3 is installed to fly it: trained on both
+# pitot fault kinds; +2 episodes (~30 s of one core) in `ftcgym bench`'s defaults.
+PITOT_FAULT_POLICIES = ("pitot-only", "airspeed-switch", "oracle-airspeed") + (
+    ("learned-airspeed",) if importlib.util.find_spec("stable_baselines3") else ())
 register(Scenario(
     name="qp-pitot-abrupt",
     env_id=QUADPLANE_AUTOPILOT,
