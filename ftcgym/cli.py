@@ -181,18 +181,17 @@ def _policy_name(name: str) -> str:
     return name
 
 
-def _positive_int(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text}")
-    return value
+def _int_at_least(low: int):
+    """An argparse type: an integer >= low."""
+    def parse(text: str) -> int:
+        value = int(text)
+        if value < low:
+            raise argparse.ArgumentTypeError(f"expected an integer >= {low}, got {text}")
+        return value
+    return parse
 
 
-def _non_negative_int(text: str) -> int:
-    value = int(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text}")
-    return value
+_positive_int, _non_negative_int = _int_at_least(1), _int_at_least(0)
 
 
 def _json_object(text: str) -> dict:
@@ -304,7 +303,8 @@ def _add_train(subparsers) -> None:
                     "Writes the model, its VecNormalize statistics, checkpoints, evaluations and a manifest "
                     "to --out.")
     parser.add_argument("--config", required=True, metavar="FILE_OR_TASK",
-                        help="a YAML config file or a built-in task (rotor-loss-recovery)")
+                        help="a YAML config file or a built-in task (ftcgym/training/configs: rotor-loss-recovery, "
+                             "airspeed-source, airspeed-source-finetune)")
     parser.add_argument("--algo", type=str.upper, choices=("PPO", "SAC"),
                         help="algorithm (default: the config's default_algo)")
     parser.add_argument("--n-envs", type=_positive_int, metavar="N", help="parallel envs (default: the config's)")
