@@ -29,7 +29,6 @@ residual r = pitot - EKF forward airspeed with the Table 2 alarm (Sec. 6.1) and 
 """
 from __future__ import annotations
 
-import json
 import math
 
 import gymnasium as gym
@@ -38,6 +37,8 @@ from gymnasium import spaces
 
 from ftcgym.agents.quadplane_autopilot import PHASES
 from ftcgym.benchmark.metrics import AIRSPEED_TOLERANCE
+from ftcgym.training.saved import SavedModelPolicy
+from ftcgym.training.tasks import interval
 
 ENV_ID = "ftcgym/AirspeedSource-v0"
 DETECTOR = "airdata_ekf"
@@ -126,9 +127,9 @@ class AirspeedSourceEnv(gym.Env):
         if not (np.all(np.isfinite(weights)) and np.all(weights >= 0) and weights.sum() > 0):
             raise ValueError(f"fault_mix: weights must be finite, >= 0 and not all 0, got {mix!r}")
         self.fault_kinds, self.fault_weights = list(mix), weights / weights.sum()
-        self.incipient_rate = _interval(incipient_rate, "incipient_rate", positive=True)
-        self.onset = _interval(onset, "onset")
-        self.wind_speed = _interval(wind_speed, "wind_speed")
+        self.incipient_rate = interval(incipient_rate, "incipient_rate", positive=True)
+        self.onset = interval(onset, "onset")
+        self.wind_speed = interval(wind_speed, "wind_speed")
         if not (math.isfinite(horizon_seconds) and horizon_seconds > 0):
             raise ValueError(f"horizon_seconds: must be > 0, got {horizon_seconds!r}")
         if int(action_repeat) != action_repeat or action_repeat < 1:
@@ -224,7 +225,7 @@ class AirspeedSourceEnv(gym.Env):
         return {**info["fdd"][DETECTOR], "time": info["time"]}
 
 
-class LearnedAirspeedPolicy:
+class LearnedAirspeedPolicy(SavedModelPolicy):
     """A model trained on `ftcgym/AirspeedSource-v0` as a benchmark policy on QuadPlaneAutopilot-v0 (with
     the `airdata_ekf` detector): the pitot reading until the detector is armed, then every `action_repeat`
     steps the model's deterministic weight w on `airspeed_features` (normalised with the saved VecNormalize
@@ -232,23 +233,12 @@ class LearnedAirspeedPolicy:
     Build it with `LearnedAirspeedPolicy.load(path, env)` or from a live model (the evaluation callback)."""
 
     detector = DETECTOR
+    DEFAULT_ENV_ID = ENV_ID
 
     def __init__(self, model, normalizer=None, env_id: str = ENV_ID, task_kwargs: dict | None = None, env=None):
         self.model, self.normalizer, self.env_id = model, normalizer, env_id
         self.action_repeat = int((task_kwargs or {}).get("action_repeat", 10))
         self.reset()
-
-    @classmethod
-    def load(cls, path, env=None) -> "LearnedAirspeedPolicy":
-        """The model saved by `ftcgym train` at `path` (the output folder or its .zip)."""
-        from ftcgym.training.policy import load_normalizer, model_files
-        from ftcgym.training.train import algorithm_class
-        model_path, normalizer_path, manifest_path = model_files(path)
-        manifest = json.loads(manifest_path.read_text()) if manifest_path.is_file() else {}
-        config = manifest.get("config", {})
-        model = algorithm_class(config.get("algo") or "PPO").load(model_path, device="cpu")
-        normalizer = load_normalizer(normalizer_path) if normalizer_path.is_file() else None
-        return cls(model, normalizer, config.get("env_id", ENV_ID), config.get("env_kwargs"), env)
 
     def reset(self, obs: dict | None = None, info: dict | None = None) -> None:
         self.engaged, self._steps, self.weight = False, 0, 0.0
@@ -266,24 +256,3 @@ class LearnedAirspeedPolicy:
                                                                    self.weight)))
         self._steps += 1
         return blend(obs, self.weight)
-
-    def predict(self, observation) -> np.ndarray:
-        """The model's deterministic action for one (unnormalised) feature vector."""
-        if self.normalizer is not None:
-            observation = self.normalizer.normalize_obs(observation)
-        action, _ = self.model.predict(observation, deterministic=True)
-        return np.asarray(action)
-
-
-def _interval(value, name: str, positive: bool = False) -> tuple[float, float]:
-    """[lo, hi] (or one number) with 0 <= lo <= hi (0 < lo if `positive`); ValueError naming the field."""
-    try:
-        low, high = (value, value) if np.isscalar(value) else (float(value[0]), float(value[1]))
-        low, high = float(low), float(high)
-        ok = len(np.atleast_1d(value)) in (1, 2) and math.isfinite(low) and math.isfinite(high)
-    except (TypeError, ValueError, IndexError):
-        ok = False
-    if not ok or not (0 <= low <= high) or (positive and low <= 0):
-        bound = "0 < lo <= hi" if positive else "0 <= lo <= hi"
-        raise ValueError(f"{name}: expected a number or [lo, hi] with {bound}, got {value!r}")
-    return low, high

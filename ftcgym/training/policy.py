@@ -20,9 +20,6 @@ where its thrust axis belongs after the alarm:
 from __future__ import annotations
 
 import json
-import pickle
-import re
-from pathlib import Path
 
 import numpy as np
 
@@ -30,42 +27,19 @@ from ftcgym.training.airspeed_task import ENV_ID as AIRSPEED_ENV_ID, LearnedAirs
 from ftcgym.agents.quadrotor_control import UP
 from ftcgym.agents.spin_recovery import thrust_axis_reference_for
 from ftcgym.geometry import rotation_matrix
+from ftcgym.training.saved import (MANIFEST_FILE, MODEL_FILE, NORMALIZER_FILE, SavedModelPolicy,  # noqa: F401
+                                  load_normalizer, model_files)
 from ftcgym.training.tasks import DETECTOR, recovery_features, to_motor_command
 
 TASK_ENV_ID = "ftcgym/RotorLossRecovery-v0"
-MODEL_FILE, NORMALIZER_FILE, MANIFEST_FILE = "model.zip", "vecnormalize.pkl", "manifest.json"
 
 
-def model_files(path) -> tuple[Path, Path, Path]:
-    """(model, VecNormalize statistics, manifest) of a training output folder or its model .zip."""
-    path = Path(path)
-    folder, model = (path, path / MODEL_FILE) if path.is_dir() else (path.parent, path)
-    if not model.is_file():
-        raise FileNotFoundError(f"model: no file {model}")
-    stem = model.name[:-len(".zip")] if model.name.endswith(".zip") else model.name
-    checkpoint = re.fullmatch(r"(.+)_(\d+)_steps", stem)    # CheckpointCallback's names
-    normalizer = folder / (NORMALIZER_FILE if stem == "model" else
-                           f"{checkpoint[1]}_vecnormalize_{checkpoint[2]}_steps.pkl" if checkpoint else
-                           f"{stem}_{NORMALIZER_FILE}")
-    manifest = next((f / MANIFEST_FILE for f in (folder, folder.parent) if (f / MANIFEST_FILE).is_file()),
-                    folder / MANIFEST_FILE)
-    return model, normalizer, manifest
-
-
-def load_normalizer(path):
-    """The pickled VecNormalize saved beside a model (statistics only: no env attached, not updating)."""
-    with open(path, "rb") as file:
-        normalizer = pickle.load(file)
-    normalizer.training = False
-    return normalizer
-
-
-class LearnedPolicy:
+class LearnedPolicy(SavedModelPolicy):
     """A trained model as a benchmark policy. Build it with `LearnedPolicy.load(path, env)` or, during
     training, from the live model and VecNormalize (`LearnedPolicy(model, normalizer, ...)`)."""
 
     detector = DETECTOR
-
+    DEFAULT_ENV_ID = TASK_ENV_ID
     AXIS_REFERENCES = ("ftc-spin", "equilibrium")
 
     def __init__(self, model, normalizer=None, env_id: str = TASK_ENV_ID, task_kwargs: dict | None = None,
@@ -85,19 +59,6 @@ class LearnedPolicy:
             self.omega_max = env.unwrapped.params.omega_max
             self._shadow = SpinRecoveryController(env.unwrapped.params, env.unwrapped.agent_hz)
         self.reset()
-
-    @classmethod
-    def load(cls, path, env=None, **kwargs) -> "LearnedPolicy":
-        """The model saved by `ftcgym train` at `path` (the output folder or its .zip) for `env`; `kwargs`
-        go to the constructor (`axis_reference`)."""
-        from ftcgym.training.train import algorithm_class
-        model_path, normalizer_path, manifest_path = model_files(path)
-        manifest = json.loads(manifest_path.read_text()) if manifest_path.is_file() else {}
-        config = manifest.get("config", {})
-        algo = config.get("algo") or _algo_of(model_path)
-        model = algorithm_class(algo).load(model_path, device="cpu")
-        normalizer = load_normalizer(normalizer_path) if normalizer_path.is_file() else None
-        return cls(model, normalizer, config.get("env_id", TASK_ENV_ID), config.get("env_kwargs"), env, **kwargs)
 
     @property
     def thrust_axis_reference(self) -> np.ndarray:
@@ -137,13 +98,6 @@ class LearnedPolicy:
         self._steps += 1
         return self._action
 
-    def predict(self, observation) -> np.ndarray:
-        """The model's deterministic action for one (unnormalised) observation."""
-        if self.normalizer is not None:
-            observation = self.normalizer.normalize_obs(observation)
-        action, _ = self.model.predict(observation, deterministic=True)
-        return np.asarray(action)
-
 
 # env id of a training task -> the policy class that flies its models in the benchmark (`load_policy`)
 POLICY_CLASSES = {TASK_ENV_ID: LearnedPolicy, AIRSPEED_ENV_ID: LearnedAirspeedPolicy}
@@ -156,12 +110,3 @@ def load_policy(path, env):
     manifest = json.loads(manifest_path.read_text()) if manifest_path.is_file() else {}
     env_id = manifest.get("config", {}).get("env_id", TASK_ENV_ID)
     return POLICY_CLASSES.get(env_id, LearnedPolicy).load(path, env)
-
-
-def _algo_of(model_path: Path) -> str:
-    """The algorithm of a model saved without a manifest, from the zip's stored class name."""
-    import zipfile
-    with zipfile.ZipFile(model_path) as archive:
-        data = json.loads(archive.read("data"))
-    text = json.dumps(data.get("policy_class", ""))
-    return "SAC" if "sac" in text.lower() else "PPO"

@@ -110,7 +110,7 @@ class RotorLossRecoveryEnv(gym.Env):
                  detector_kwargs: dict | None = None, sensors: dict | None = None, expert: bool = False):
         self.vehicles = [vehicle] if isinstance(vehicle, str) else list(vehicle)
         self.winds = wind if isinstance(wind, list) else [wind]
-        self.onset = _interval(onset, "onset")
+        self.onset = interval(onset, "onset")
         self.failed_rotors = _rotors(failed_rotor)
         if not (horizon_seconds > 0):
             raise ValueError(f"horizon_seconds: must be > 0, got {horizon_seconds!r}")
@@ -226,17 +226,24 @@ def _draw_wind(spec, rng) -> dict | None:
     """A wind dict for DrydenWind.from_config; {"mean_speed": [lo, hi]} draws a horizontal mean wind."""
     if not isinstance(spec, dict) or "mean_speed" not in spec:
         return spec
-    low, high = _interval(spec["mean_speed"], "wind.mean_speed")
+    low, high = interval(spec["mean_speed"], "wind.mean_speed")
     speed, heading = rng.uniform(low, high), rng.uniform(0.0, 2.0 * np.pi)
     rest = {key: value for key, value in spec.items() if key != "mean_speed"}
     return {**rest, "mean": [speed * math.cos(heading), speed * math.sin(heading), 0.0]}
 
 
-def _interval(value, name: str) -> tuple[float, float]:
-    low, high = (value, value) if np.isscalar(value) else value
-    if not (0 <= low <= high):
-        raise ValueError(f"{name}: expected a number or [lo, hi] with 0 <= lo <= hi, got {value!r}")
-    return float(low), float(high)
+def interval(value, name: str, positive: bool = False) -> tuple[float, float]:
+    """[lo, hi] (or one number) with 0 <= lo <= hi (0 < lo if `positive`); ValueError naming the field."""
+    try:
+        low, high = (value, value) if np.isscalar(value) else (float(value[0]), float(value[1]))
+        low, high = float(low), float(high)
+        ok = len(np.atleast_1d(value)) in (1, 2) and math.isfinite(low) and math.isfinite(high)
+    except (TypeError, ValueError, IndexError):
+        ok = False
+    if not ok or not (0 <= low <= high) or (positive and low <= 0):
+        bound = "0 < lo <= hi" if positive else "0 <= lo <= hi"
+        raise ValueError(f"{name}: expected a number or [lo, hi] with {bound}, got {value!r}")
+    return low, high
 
 
 def _rotors(value) -> list[int]:

@@ -1,0 +1,72 @@
+"""A model saved by `ftcgym train` (model.zip, vecnormalize.pkl, manifest.json) and `SavedModelPolicy`, the
+base of the benchmark policies that fly one (`policy.LearnedPolicy`, `airspeed_task.LearnedAirspeedPolicy`)."""
+from __future__ import annotations
+
+import json
+import pickle
+import re
+from pathlib import Path
+
+import numpy as np
+
+MODEL_FILE, NORMALIZER_FILE, MANIFEST_FILE = "model.zip", "vecnormalize.pkl", "manifest.json"
+
+
+def model_files(path) -> tuple[Path, Path, Path]:
+    """(model, VecNormalize statistics, manifest) of a training output folder or its model .zip."""
+    path = Path(path)
+    folder, model = (path, path / MODEL_FILE) if path.is_dir() else (path.parent, path)
+    if not model.is_file():
+        raise FileNotFoundError(f"model: no file {model}")
+    stem = model.name[:-len(".zip")] if model.name.endswith(".zip") else model.name
+    checkpoint = re.fullmatch(r"(.+)_(\d+)_steps", stem)    # CheckpointCallback's names
+    normalizer = folder / (NORMALIZER_FILE if stem == "model" else
+                           f"{checkpoint[1]}_vecnormalize_{checkpoint[2]}_steps.pkl" if checkpoint else
+                           f"{stem}_{NORMALIZER_FILE}")
+    manifest = next((f / MANIFEST_FILE for f in (folder, folder.parent) if (f / MANIFEST_FILE).is_file()),
+                    folder / MANIFEST_FILE)
+    return model, normalizer, manifest
+
+
+def load_normalizer(path):
+    """The pickled VecNormalize saved beside a model (statistics only: no env attached, not updating)."""
+    with open(path, "rb") as file:
+        normalizer = pickle.load(file)
+    normalizer.training = False
+    return normalizer
+
+
+class SavedModelPolicy:
+    """Loading and deterministic prediction shared by the learned benchmark policies. Subclasses take
+    (model, normalizer, env_id, task_kwargs, env, **kwargs) and set `DEFAULT_ENV_ID`."""
+
+    DEFAULT_ENV_ID: str = ""
+
+    @classmethod
+    def load(cls, path, env=None, **kwargs):
+        """The model saved by `ftcgym train` at `path` (the output folder or its .zip) for `env`; `kwargs`
+        go to the constructor."""
+        from ftcgym.training.train import algorithm_class
+        model_path, normalizer_path, manifest_path = model_files(path)
+        manifest = json.loads(manifest_path.read_text()) if manifest_path.is_file() else {}
+        config = manifest.get("config", {})
+        model = algorithm_class(config.get("algo") or _algo_of(model_path)).load(model_path, device="cpu")
+        normalizer = load_normalizer(normalizer_path) if normalizer_path.is_file() else None
+        return cls(model, normalizer, config.get("env_id", cls.DEFAULT_ENV_ID), config.get("env_kwargs"), env,
+                   **kwargs)
+
+    def predict(self, observation) -> np.ndarray:
+        """The model's deterministic action for one (unnormalised) observation."""
+        if self.normalizer is not None:
+            observation = self.normalizer.normalize_obs(observation)
+        action, _ = self.model.predict(observation, deterministic=True)
+        return np.asarray(action)
+
+
+def _algo_of(model_path: Path) -> str:
+    """The algorithm of a model saved without a manifest, from the zip's stored class name."""
+    import zipfile
+    with zipfile.ZipFile(model_path) as archive:
+        data = json.loads(archive.read("data"))
+    text = json.dumps(data.get("policy_class", ""))
+    return "SAC" if "sac" in text.lower() else "PPO"
