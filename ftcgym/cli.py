@@ -21,6 +21,8 @@ import sys
 import time
 from importlib import metadata
 
+from ftcgym.benchmark.backends import int_at_least
+
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -181,17 +183,7 @@ def _policy_name(name: str) -> str:
     return name
 
 
-def _int_at_least(low: int):
-    """An argparse type: an integer >= low."""
-    def parse(text: str) -> int:
-        value = int(text)
-        if value < low:
-            raise argparse.ArgumentTypeError(f"expected an integer >= {low}, got {text}")
-        return value
-    return parse
-
-
-_positive_int, _non_negative_int = _int_at_least(1), _int_at_least(0)
+_positive_int, _non_negative_int = int_at_least(1), int_at_least(0)
 
 
 def _json_object(text: str) -> dict:

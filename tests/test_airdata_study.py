@@ -46,3 +46,14 @@ def test_fly_rolls_out_a_short_episode_and_scores_it():
     assert out["flight_time"] == pytest.approx(2.0) and out["crashed"] is False
     assert out["fault_onset"] is None and out["alarm_time_gnss"] is None   # the fault comes at 45 s
     assert 0.0 < out["ekf_started"] < 2.0 and 0.0 < out["airborne_time"] < 2.0   # started once airborne
+
+
+def test_study_in_worker_processes_matches_one_process():
+    overrides = {"max_episode_seconds": 2.0}
+    seen = []
+    serial = study.study("qp-gnss-fault", 2, seed=3, env_overrides=overrides)
+    parallel = study.study("qp-gnss-fault", 2, seed=3, env_overrides=overrides, workers=2,
+                           progress=lambda index, row: seen.append(index))
+    assert sorted(seen) == [0, 1] and [r["seed"] for r in parallel] == [r["seed"] for r in serial]
+    assert [r["ekf_started"] for r in parallel] == [r["ekf_started"] for r in serial]
+    assert [r["airborne_time"] for r in parallel] == [r["airborne_time"] for r in serial]

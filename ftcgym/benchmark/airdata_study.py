@@ -17,6 +17,7 @@ import math
 
 import numpy as np
 
+from ftcgym.benchmark.backends import Callbacks, Job, int_at_least, run_jobs
 from ftcgym.benchmark.runner import episode_seed, make_env, roll_out
 from ftcgym.benchmark.scenarios import get_scenario
 from ftcgym.fdd import false_alarm
@@ -109,14 +110,26 @@ def _max(values: np.ndarray):
 
 
 def study(scenario_name: str, episodes: int, seed: int, policy_name: str = "oracle-airspeed",
-          env_overrides: dict | None = None, record: bool = False, progress=None) -> list[dict]:
-    """`episodes` episodes seeded as `ftcgym bench --seed seed` seeds them."""
-    results = []
-    for index in range(episodes):
-        results.append(fly(scenario_name, episode_seed(seed, index), policy_name, env_overrides, record))
-        if progress:
-            progress(index, results[-1])
-    return results
+          env_overrides: dict | None = None, record: bool = False, progress=None, workers: int = 1) -> list[dict]:
+    """`episodes` episodes seeded as `ftcgym bench --seed seed` seeds them, in episode order; `workers` > 1 flies
+    them in that many processes (`backends.run_jobs`); `progress(index, row)` sees each as it finishes."""
+    scenario = get_scenario(scenario_name)
+    jobs = [Job(f"{scenario_name}/{policy_name}/{index}", scenario, policy_name, episode_seed(seed, index),
+                env_overrides) for index in range(episodes)]
+    order = {job.key: index for index, job in enumerate(jobs)}
+    callbacks = Callbacks(finished=lambda job, row: progress(order[job.key], row)) if progress else None
+    episode = _fly_recorded if record else _fly_job
+    return run_jobs(jobs, "local", max(1, min(workers, episodes)), callbacks=callbacks, episode=episode,
+                    progress=False)
+
+
+def _fly_job(scenario, policy_name: str, seed: int, env_overrides) -> dict:
+    """`fly` with `run_jobs`' episode signature (module level: it is pickled to the workers)."""
+    return fly(scenario.name, seed, policy_name, env_overrides)
+
+
+def _fly_recorded(scenario, policy_name: str, seed: int, env_overrides) -> dict:
+    return fly(scenario.name, seed, policy_name, env_overrides, record=True)
 
 
 def summary(results: list[dict]) -> dict:
@@ -227,6 +240,8 @@ def _common(parser, episodes: int) -> None:
     parser.add_argument("--policy", default="oracle-airspeed", metavar="NAME")
     parser.add_argument("--env-kwargs", type=json.loads, default=None, metavar="JSON",
                         help="merged into the scenario's env kwargs")
+    parser.add_argument("--workers", type=int_at_least(1), default=1, metavar="W",
+                        help="episodes flown in parallel processes (default 1)")
 
 
 def main_study(args) -> int:
@@ -241,7 +256,8 @@ def main_study(args) -> int:
         done.append(row)
         _write(args.out, done, config)          # after every episode: a long run stopped early keeps its rows
 
-    results = study(args.scenario, args.episodes, args.seed, args.policy, args.env_kwargs, progress=progress)
+    results = study(args.scenario, args.episodes, args.seed, args.policy, args.env_kwargs, progress=progress,
+                    workers=args.workers)
     print(json.dumps(summary(results), indent=1))
     return 0
 
@@ -256,7 +272,8 @@ def main_thresholds(args) -> int:
     if args.load:
         segments = load_segments(args.load)
     else:
-        results = study(args.scenario, args.episodes, args.seed, args.policy, args.env_kwargs, record=True)
+        results = study(args.scenario, args.episodes, args.seed, args.policy, args.env_kwargs, record=True,
+                        workers=args.workers)
         if any(r["fault_onset"] is not None for r in results):
             raise ValueError(f"scenario {args.scenario!r} has faults: thresholds need fault-free flights")
         segments = traces_to_segments([r["trace"] for r in results])

@@ -74,13 +74,14 @@ def add_backend_arguments(parser) -> None:
     parser.add_argument("--ray-address", metavar="ADDR",
                         help="address of a running Ray cluster, e.g. 10.0.0.5:6379 or 'auto' "
                              "(default: start a local Ray instance of --workers CPUs)")
-    parser.add_argument("--chunk", type=_int_at_least(1), default=1, metavar="N",
+    parser.add_argument("--chunk", type=int_at_least(1), default=1, metavar="N",
                         help="episodes per Ray task (default: 1)")
-    parser.add_argument("--retries", type=_int_at_least(0), default=DEFAULT_RETRIES, metavar="N",
+    parser.add_argument("--retries", type=int_at_least(0), default=DEFAULT_RETRIES, metavar="N",
                         help=f"times a failed episode is run again (default: {DEFAULT_RETRIES})")
 
 
-def _int_at_least(minimum: int) -> Callable[[str], int]:
+def int_at_least(minimum: int) -> Callable[[str], int]:
+    """An argparse type: an integer >= minimum."""
     def parse(text: str) -> int:
         if not text.lstrip("-").isdigit() or int(text) < minimum:
             raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}, got {text!r}")
