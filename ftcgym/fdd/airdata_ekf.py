@@ -90,16 +90,22 @@ ERROR_COEFFICIENTS = ("fuselage_drag_area", "hover_thrust_coefficient", "hover_d
 #: model), so the raw innovation shows the fault as a burst of +0.5..+1.5 m/s^2 over the first 0.1-0.5 s and
 #: then mostly as smaller bursts (tuning seed 1000, 10 flights), which 1.25 for 2 s never sees. A reading that
 #: fails low makes the model miss thrust, so the innovation (measured - model) goes positive: the criterion is
-#: one-sided ("sign": +1), on the innovation low-passed at 1 Hz (to pass the burst), held 0.4 s, at 0.27 m/s^2:
+#: one-sided ("sign": +1), on the innovation low-passed at 1 Hz (to pass the burst), held 0.2 s, at 0.41 m/s^2:
 #: the run-rate threshold of `false_alarm.run_rate_threshold` for 0.1% false detection per flight hour (001 Sec.
 #: 6.1's budget) on 18 fault-free qp-no-fault-long flights (0.97 armed hours; base seeds 1000, 10 flights with
-#: mean wind >= 7.5 m/s, and 1001, 8 flights; the largest held level seen 0.19 m/s^2). On the 10 tuning flights
-#: (`ftcgym airdata-study --scenario qp-rpm-sensor-fault --seed 1000`, 75 s) the delays are 0.50-0.56 s in 8,
-#: 2.44 s and 4.38 s (weak bursts: there the a_x model error shows again only seconds later), median 0.55 s;
-#: the old 0.1 Hz / 1 s / 0.082 criterion took 2.0-14.8 s, median 2.9 s. The derivative row is Table 2's.
+#: mean wind >= 7.5 m/s, and 1001, 8 flights; the largest level held 0.2 s there: 0.22 m/s^2). The cutoff and
+#: hold separate the fault's burst best from those flights' largest level (cutoffs 0.5-5 Hz, holds 2-10
+#: samples: 8 of the 10 tuning bursts reach 1.7-2.6 times it). A first choice, 0.27 m/s^2 held 0.4 s (the
+#: run-rate threshold for that hold), raised a false alarm at 33.9 s in the 18th of the held-out flights of
+#: `--seed 300`; the run-rate extrapolation from one hour had been too optimistic, so the hold and threshold
+#: were re-chosen as above, on the tuning flights only, and the held-out measurements moved to `--seed 301`.
+#: On the 10 tuning flights (offline replay of `ftcgym airdata-study --scenario qp-rpm-sensor-fault --seed
+#: 1000`, 75 s) the delays have a median of 0.40 s and a maximum of 4.42 s (weak bursts: there the a_x model
+#: error shows again only seconds later); the old 0.1 Hz / 1 s / 0.082 criterion took 2.0-14.8 s, median 2.9 s.
+#: The derivative row is Table 2's.
 INNOVATION_DETECTORS = {
     "gnss": {"channels": (0, 1, 2), "norm": (2.5, 0.08, 5.0), "derivative": (30.0, 0.08, 5.0), "rollback": 0.16},
-    "pusher_rpm": {"channels": (3,), "norm": (0.27, 0.4, 1.0), "derivative": (250.0, 0.12, 0.1), "sign": 1,
+    "pusher_rpm": {"channels": (3,), "norm": (0.41, 0.2, 1.0), "derivative": (250.0, 0.12, 0.1), "sign": 1,
                    "rollback": 6.0},
 }
 #: "rollback" (s, default 0): on the alarm the EKF re-runs from its state that long ago without the sensor
