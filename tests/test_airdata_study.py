@@ -57,3 +57,14 @@ def test_study_in_worker_processes_matches_one_process():
     assert sorted(seen) == [0, 1] and [r["seed"] for r in parallel] == [r["seed"] for r in serial]
     assert [r["ekf_started"] for r in parallel] == [r["ekf_started"] for r in serial]
     assert [r["airborne_time"] for r in parallel] == [r["airborne_time"] for r in serial]
+
+
+def test_zeroed_pusher_rpm_isolated_within_a_second_in_cruise():
+    """001 Sec. 7.3.2: the pusher RPM reads zero in forward flight (here from 32 s, cruise from ~25 s); the a_x
+    innovation criterion isolates "pusher_rpm" (001: 4.3 s) before any pitot criterion fires."""
+    faults = [{"kind": "pusher_rpm_sensor", "time": 32.0}]
+    out = study.fly("qp-rpm-sensor-fault", seed=2, env_overrides={"faults": faults, "max_episode_seconds": 35.0})
+    assert out["fault_onset"] == pytest.approx(32.0)
+    assert 0.0 < out["delay_pusher_rpm"] <= 1.0
+    assert out["alarm_time_table2"] is None and out["alarm_time_cusum"] is None
+    assert out["airspeed_rmse_after_detection"] < 2.33           # 001's precision after the fault
