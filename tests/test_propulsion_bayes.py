@@ -19,11 +19,12 @@ FAULT_HANDLES = {"propeller_icing": "theta_1", "viscous_friction": "c_v", "stati
 
 
 def synthetic_flight(detector, seconds, fault=None, onset=150.0, factor=1.1, hz=50.0, seed=0,
-                     current_noise=0.0032, speed_noise=0.71, airspeed_noise=0.026):
+                     current_noise=0.0032, speed_noise=0.71, airspeed_noise=0.026, ramp=0.0, on_sample=None):
     """Feeds `detector` readings of a pusher obeying 003 eq. (1)-(5) exactly (VSQP, 003 Sec. IV-B noise) whose
     airspeed follows 18 m/s + the detector's request with a 2 s lag and whose speed swings by +-20 and
     +-30 rad/s at 0.03 and 0.2 Hz, as the quad-plane's airspeed loop makes it in turbulence. The fault steps
-    to `factor` x nominal at `onset`. Returns the detector."""
+    to `factor` x nominal at `onset`, or rises linearly to it over `ramp` s (003 Sec. IV-A). `on_sample(t)` is
+    called after every sample. Returns the detector."""
     rng = np.random.default_rng(seed)
     nominal = {"theta_1": 1.0, "c_v": VSQP.pusher_viscous_friction, "I_0": VSQP.pusher_zero_load_current}
     V, dt = 18.0, 1.0 / hz
@@ -34,12 +35,14 @@ def synthetic_flight(detector, seconds, fault=None, onset=150.0, factor=1.1, hz=
         omega_dot = 40.0 * (18.0 + detector.airspeed_request - V) / 2.0 + 4.0 * math.cos(0.2 * t) + 39.0 * math.cos(1.3 * t)
         values = dict(nominal)
         if fault is not None and t >= onset:
-            values[FAULT_HANDLES[fault]] *= factor
+            values[FAULT_HANDLES[fault]] *= 1.0 + (factor - 1.0) * (min(1.0, (t - onset) / ramp) if ramp else 1.0)
         current = steady_state_current(VSQP, omega, V, **values) + VSQP.pusher_inertia * omega_dot / VSQP.pusher_motor_constant
         readings = {"pusher_speed": [omega + speed_noise * rng.standard_normal()],
                     "pusher_current": [current + current_noise * rng.standard_normal()],
                     "pitot_airspeed": [V + airspeed_noise * rng.standard_normal()]}
         detector.update(readings, t)
+        if on_sample is not None:
+            on_sample(t)
     return detector
 
 
@@ -120,6 +123,22 @@ def test_detects_and_isolates_on_synthetic_data(fault):
     assert status["isolated"] == fault and MODES.index(fault) == det.hypothesis
 
 
+@pytest.mark.parametrize("fault", ["propeller_icing", "static_friction"])
+def test_isolation_waits_for_the_fault_to_develop(fault):
+    """A fault rising by 10% over 50 s from 150 s (003 Sec. IV-A) is detected within its first 40 s; the airspeed
+    step (Sec. III-D step 1) waits until the KF estimates have stabilized (Sec. III-E), i.e. until the ramp is
+    (nearly) over, and the isolation then names the mode."""
+    det = PropulsionBayesDetector(VSQP, 50.0, perturbation=4.0)
+    steps = []
+    synthetic_flight(det, 400.0, fault, ramp=50.0,
+                     on_sample=lambda t: steps.append(t) if det.airspeed_request > 0 and det.phase == "isolating" else None)
+    status = det.status()
+    assert 150.0 < status["alarm_time"] <= 190.0
+    assert steps[0] >= 190.0                                       # not on the ramp: >= 80% developed
+    assert status["isolated"] == fault
+    assert det.isolate_filter.probabilities[MODES.index(fault)] > 0.9
+
+
 def test_wrapper_passes_the_airspeed_request_to_the_autopilot():
     env = wrap_with_detector("propulsion_bayes", gym.make("ftcgym/QuadPlaneAutopilot-v0", max_episode_seconds=5))
     obs, _ = env.reset(seed=0)
@@ -136,3 +155,30 @@ def test_wrapper_passes_the_airspeed_request_to_the_autopilot():
 def test_benchmark_isolation_target_is_the_mode_name():
     for kind in ("propeller_icing", "viscous_friction", "static_friction"):
         assert isolation_target(kind, None) == kind
+
+
+def test_isolation_refits_the_healthy_reference_with_each_static_model():
+    """Step 2 (departure): a healthy reference off by d theta_1* = -0.3% leaves the calibration record a
+    residual 0.003 Q_a* and adds the same to the fault's. A static fault of 0.1 A then looks viscous to static
+    models fitted on the isolation record alone, but is isolated (with I_0 within 2%) when the reference
+    correction is fitted to both records."""
+    det = PropulsionBayesDetector(VSQP, 50.0)
+    rng = np.random.default_rng(3)
+    model, sigma = det.model, 2e-4
+
+    def rows(n, omega0, V0):
+        omega = omega0 + 60.0 * rng.standard_normal(n)
+        return model.regressors(omega, np.full(n, V0) + 0.5 * rng.standard_normal(n))
+
+    C_cal = np.vstack([rows(100, 750.0, 18.0), rows(100, 950.0, 22.0)])
+    C_rec = np.vstack([rows(100, 750.0, 18.0), rows(100, 950.0, 22.0)])
+    d_theta, d_I0 = 0.003, 0.1
+    det.x_star, det.R = model.x_star.copy(), sigma ** 2
+    det._reference = (C_cal[:, [0, 2]], d_theta * C_cal[:, 0] + sigma * rng.standard_normal(len(C_cal)))
+    nu_0 = d_theta * C_rec[:, 0] + d_I0 * C_rec[:, 2] + sigma * rng.standard_normal(len(C_rec))
+    det._record = list(zip(nu_0, C_rec))
+    alone = [np.sum((nu_0 - C_rec[:, i] * (C_rec[:, i] @ nu_0) / (C_rec[:, i] @ C_rec[:, i])) ** 2) for i in range(3)]
+    assert np.argmin(alone) == 1                                   # the record alone: viscous
+    winner, p = det._isolation_test()
+    assert MODES[winner] == "static_friction" and p[winner] > 0.99
+    assert det._static[2] - det.x_star[2] == pytest.approx(d_I0, rel=0.02)

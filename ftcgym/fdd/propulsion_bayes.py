@@ -24,12 +24,30 @@ Per sample (`update`):
    comparing Y^(0) with KF^(i) (eq. 29-30, S = s_detect R for both: Sec. III-B), each restarted from the
    prior Pi^h_1 = [2/3, 1/3] (eq. 32) every detection window L_D; at the end of a window
    H_D = H_1 or H_2 or H_3 (argmax of each). H_D raises the alarm (latched, `alarm_time`).
-4. Isolation (Sec. III-D, Fig. 4): the detector requests +`perturbation` m/s of airspeed (`airspeed_request`),
-   waits `settle` s, samples x_ks^(i) (the mean of each KF estimate over the next `sample_seconds`: a
-   quieter sample than one instant), builds the static models Y^(i) (eq. 26-28), requests the cruise
-   airspeed back, waits `settle` s, then runs one Bayes filter over Y^(0..3) with the uniform prior
-   Pi^f_1 (eq. 33) for the isolation window L_I (eq. 31). H_I = argmax; H_I > 0 sets `isolated` to the mode
-   name; H_I = 0 (a false detection, Sec. III-A) returns to detection (the alarm stays latched).
+4. Isolation (Sec. III-D, Fig. 4), with departures (issue 6: as first built here, sampling KF^(i) on the
+   airspeed step and testing on the return, it isolated icing 9/10, static 8/10, viscous 6/10 at `--seed 300`):
+   (a) after the alarm it waits for the fault to develop (Sec. III-E: not before the KFs have stabilized):
+   every KF's mean over the last `develop_window` s has moved by < `develop_ratio` of its distance from x*
+   since the window before, or `max_develop` s have passed. An icing alarm comes ~15 s into a 50 s ramp,
+   and static models sampled on the ramp had picked the wrong mode. (b) Step 1 and 3: +`perturbation` m/s
+   (`airspeed_request`) for `level_seconds`, then the cruise airspeed for `level_seconds`; every valid
+   sample from the last develop window on, the steps included (eq. 1 in integral form holds there too), is
+   the isolation record. (c) Step 2: the static models Y^(0..3) (eq. 25-28), Y^(i) with x_ks^(i) in mode i,
+   are least-squares fits to the whole record, each together with a correction (d theta_1*, d I_0*) of the
+   healthy reference x* that must also fit the calibration record without a fault. A 10% viscous fault is
+   ~8e-4 N m (0.04 A); what tells it from a static one is how it changes between the two airspeeds,
+   ~2e-4 N m, as large as the error of a reference fitted on ~50 s (on seed 1000 its mean residuals at the
+   two airspeeds were 4e-4 N m apart with the level samples alone), so the reference is re-tested with
+   each hypothesis instead of trusted. (d) Step 4: the Bayes filter of eq. (29)-(31) runs over the
+   innovations of both records from the uniform prior Pi^f_1 (eq. 33); if the winner's probability is below
+   `p_confident` it steps again with the record kept (at most `max_cycles` steps), else, or after the
+   last step, H_I = argmax. H_I > 0 sets `isolated` to the mode name; H_I = 0 (a false detection,
+   Sec. III-A) returns to detection (the alarm stays latched). Tuning, `--seed 1000`, 4 episodes per
+   scenario: the first build isolated icing 4/4, static 3/4, viscous 2/4; this one 4/4 each (winner's
+   posterior 0.53-0.98 for static and viscous: the margins stay thin), no alarm in 4 fault-free ones.
+   Held out (`--seed 300`, 10 per scenario): icing 10/10, static 8/10, viscous 7/10 (first build 9, 8, 6),
+   the 5 misses static <-> viscous or viscous -> icing at a winner's posterior of 0.50-0.70; detection and
+   false alarms unchanged. Issue 6's 100% is not met: the reference's error is the floor (see (c)).
 
 The detector only runs while the pusher drives wing-borne flight (airspeed >= `min_airspeed` and current
 >= `min_current`, held for `settle` s) below 98% of the ESC's speed limit (there the speed is clipped and
@@ -172,10 +190,11 @@ class PropulsionBayesDetector:
     Parameters: params (the vehicle set, read by attribute), sample_hz (rate of `update`), fdi_hz (2),
     coefficient_error, error_seed (PropulsionModel), process_noise (per mode, the random walk of the torque
     it explains, N m per sqrt(s): Q^(i) = (q_i / mean C^(i))^2 / fdi_hz), s_detect and s_isolate (Bayes-filter innovation
-    variances in units of R: the sensitivity, Sec. III-E), detection_window and isolation_window (s, L_D
-    and L_I), perturbation (m/s asked for), settle (s after each airspeed change and after the gate opens),
-    calibration_seconds (s of data at each calibration airspeed), sample_seconds (s of KF estimates
-    averaged into x_ks), min_airspeed (m/s), min_current (A).
+    variances in units of R: the sensitivity, Sec. III-E), detection_window (s, L_D), perturbation (m/s asked
+    for), settle (s after each calibration airspeed change and after the gate opens), calibration_seconds (s of
+    data at each calibration airspeed), develop_window, develop_ratio and max_develop (s, s: when the fault
+    counts as developed), level_seconds (s at each airspeed of an isolation step), p_confident and max_cycles
+    (isolation: posterior needed to stop stepping, most steps), min_airspeed (m/s), min_current (A).
     """
 
     name = "propulsion_bayes"
@@ -185,14 +204,16 @@ class PropulsionBayesDetector:
 
     def __init__(self, params, sample_hz: float, fdi_hz: float = 2.0, coefficient_error: float = 0.10,
                  error_seed: int | None = None, process_noise=(5e-4, 5e-4, 5e-4), s_detect: float = 1.0,
-                 s_isolate: float = 1.0, detection_window: float = 20.0, isolation_window: float = 60.0,
-                 perturbation: float = 4.0, settle: float = 12.0, calibration_seconds: float = 15.0,
-                 sample_seconds: float = 25.0, min_airspeed: float = 12.0, min_current: float = 3.0,
-                 airspeed_key: str = "pitot_airspeed"):
+                 s_isolate: float = 1.0, detection_window: float = 20.0, perturbation: float = 4.0,
+                 settle: float = 12.0, calibration_seconds: float = 15.0, level_seconds: float = 25.0,
+                 develop_window: float = 10.0, develop_ratio: float = 0.15, max_develop: float = 30.0,
+                 p_confident: float = 0.95, max_cycles: int = 2, min_airspeed: float = 12.0,
+                 min_current: float = 3.0, airspeed_key: str = "pitot_airspeed"):
         if not (math.isfinite(sample_hz) and 0.0 < fdi_hz <= sample_hz):
             raise ValueError(f"sample_hz {sample_hz!r} and fdi_hz {fdi_hz!r}: need 0 < fdi_hz <= sample_hz")
         for key, value in (("s_detect", s_detect), ("s_isolate", s_isolate), ("detection_window", detection_window),
-                           ("isolation_window", isolation_window), ("calibration_seconds", calibration_seconds)):
+                           ("calibration_seconds", calibration_seconds), ("level_seconds", level_seconds),
+                           ("develop_window", develop_window)):
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"{key}: must be a positive number, got {value!r}")
         self.model = PropulsionModel(params, coefficient_error, error_seed)
@@ -200,9 +221,11 @@ class PropulsionBayesDetector:
         self.dt = self.block / float(sample_hz)                   # s per FDI sample
         self.q = np.asarray(process_noise, dtype=float)
         self.s_detect, self.s_isolate = float(s_detect), float(s_isolate)
-        self.L_detect, self.L_isolate = self._samples(detection_window), self._samples(isolation_window)
+        self.L_detect = self._samples(detection_window)
         self.perturbation, self.settle = float(perturbation), float(settle)
-        self.n_calibration, self.n_sample = self._samples(calibration_seconds), self._samples(sample_seconds)
+        self.n_calibration, self.n_develop = self._samples(calibration_seconds), self._samples(develop_window)
+        self.level_seconds, self.develop_ratio, self.max_develop = float(level_seconds), float(develop_ratio), float(max_develop)
+        self.p_confident, self.max_cycles = float(p_confident), int(max_cycles)
         self.min_airspeed, self.min_current, self.airspeed_key = float(min_airspeed), float(min_current), airspeed_key
         self.max_speed = 0.98 * float(params.pusher_omega_max)
         self._averager = _BlockAverager(self.block)
@@ -221,13 +244,13 @@ class PropulsionBayesDetector:
         self.R = None
         self.filters = None
         self.detect_filters = [BayesFilter(HEALTH_PRIOR, self.L_detect) for _ in range(3)]
-        self.isolate_filter = BayesFilter(FAULT_PRIOR, self.L_isolate)
+        self.isolate_filter = BayesFilter(FAULT_PRIOR, 1)
         self.airspeed_request = 0.0
         self.isolated, self.hypothesis, self.detections = None, None, 0
         self._gate_since, self._step_start, self._time = None, None, 0.0
         self.Theta = self.model.Theta
-        self._calibration, self._omega_sum = [], 0.0          # ([Q_a*, k_e], y - c_v* omega), sum of omega
-        self._history, self._static = [], None
+        self._calibration, self._omega_sum, self._level_count = [], 0.0, 0   # rows, sum of omega, level samples
+        self._history, self._static, self._record, self._cycles, self._reference = [], None, [], 0, None
 
     def _enter(self, phase: str, step: str, time: float) -> None:
         self.phase, self.step_name, self._step_start = phase, step, time
@@ -273,12 +296,18 @@ class PropulsionBayesDetector:
         """Collects [Q_a*, k_e, omega_dot] -> k_e I_e - c_v* omega at both airspeeds, then fits theta_1*, I_0*
         and Theta (the detector's Theta errs too, and in turbulence Theta omega_dot is the largest term of the
         residual) by instrumental variables: omega_dot from noisy speeds would bias a least-squares Theta
-        toward 0. c_v* is kept: its term is small and nearly a combination of the others here."""
-        if self.step_name in ("base", "high"):
-            self._calibration.append(([C[0], C[2], omega_dot[0]], [C[0], C[2], omega_dot[1]],
-                                      motor_torque - C[1] * self.x_star[1]))
-            self._omega_sum += C[1]
-            if len(self._calibration) >= self.n_calibration * (1 if self.step_name == "base" else 2):
+        toward 0. c_v* is kept: its term is small and nearly a combination of the others here (fitting it
+        too gave c_v* from 0.6 to 1.4 x its value). The samples of the airspeed changes are fitted as well
+        (eq. 1 in integral form holds there too): the fit is the healthy reference the isolation tests
+        against, and with the 30 level samples alone it left the two airspeeds' mean residuals
+        +-2e-4 N m from 0 (seed 1000), a tilt like a viscous fault's; with the steps, +-5e-5."""
+        level = self.step_name in ("base", "high")
+        self._calibration.append(([C[0], C[2], omega_dot[0]], [C[0], C[2], omega_dot[1]],
+                                  motor_torque - C[1] * self.x_star[1], level))
+        self._omega_sum += C[1]
+        if level:
+            self._level_count += 1
+            if self._level_count >= self.n_calibration * (1 if self.step_name == "base" else 2):
                 self.airspeed_request = self.perturbation if self.step_name == "base" else 0.0
                 self._enter("calibrating", "up" if self.step_name == "base" else "down", self._time)
         elif self._time - self._step_start >= self.settle - 1e-9:
@@ -288,11 +317,14 @@ class PropulsionBayesDetector:
                 self._finish_calibration()
 
     def _finish_calibration(self) -> None:
-        rows, instruments, targets = (np.array(column) for column in zip(*self._calibration))
+        rows, instruments, targets, level = (np.array(column) for column in zip(*self._calibration))
         theta, i_0, inertia = np.linalg.solve(instruments.T @ rows, instruments.T @ targets)
         self._omega_mean = self._omega_sum / len(rows)
         self.x_star, self.Theta = np.array([theta, self.x_star[1], i_0]), float(inertia)
-        self.R = float(np.var(targets - rows @ np.array([theta, i_0, inertia])))
+        residual = targets - rows @ np.array([theta, i_0, inertia])
+        # R from the samples at the two airspeeds (the steps' large omega_dot would inflate it)
+        self.R = float(np.var(residual[level]))
+        self._reference = (rows[:, :2], residual)        # [Q_a*, k_e] and the healthy residual, for isolation
         # Q^(i): a random walk of `process_noise` N m per sqrt(s) in the torque each mode explains (Sec. III-E:
         # commensurate with the fault), so every KF^(i) settles in a few seconds after the airspeed step.
         C_mean = np.abs(np.array([rows[:, 0].mean(), self._omega_mean, rows[:, 1].mean()]))
@@ -311,7 +343,7 @@ class PropulsionBayesDetector:
             offset = float(C @ self.x_star) - C[i] * self.x_star[i]     # eq. (16): the other modes at x*
             nu.append(kf.step(y, C[i], offset, self.R)[0])
         self._history.append([kf.x for kf in self.filters])
-        del self._history[:-self.n_sample]
+        del self._history[:-2 * self.n_develop]
         return np.array(nu)
 
     def _detect(self, y: float, C: np.ndarray) -> None:
@@ -321,39 +353,82 @@ class PropulsionBayesDetector:
         if any(v == 1 for v in votes):                                 # H_D = H_1 or H_2 or H_3 (Fig. 3)
             self.detections += 1
             self._latch.trigger(self._time)
-            self.airspeed_request = self.perturbation                  # Sec. III-D step 1
-            self._enter("isolating", "up", self._time)
+            self._record, self._cycles = [], 0
+            self._enter("isolating", "develop", self._time)            # then Sec. III-D step 1
 
     # ------------------------------------------------------------------ isolation (Sec. III-D)
     def _isolate(self, y: float, C: np.ndarray) -> None:
         nu = self._kalman(y, C)
-        elapsed = self._time - self._step_start
-        if self.step_name == "up" and elapsed >= self.settle + self.n_sample * self.dt - 1e-9:
-            self._static = np.mean(self._history, axis=0)            # step 2: x_ks^(i)
-            self.airspeed_request = 0.0                                # step 3
-            self.isolate_filter.reset()
+        if self.step_name == "develop":
+            self._develop(nu[0], C)
+            return
+        self._record.append((nu[0], C))                                # every valid sample, steps included
+        if self._time - self._step_start < self.level_seconds - 1e-9:
+            return
+        if self.step_name == "up":                                     # step 3: back to the cruise airspeed
+            self.airspeed_request = 0.0
             self._enter("isolating", "down", self._time)
-        elif self.step_name == "down" and elapsed >= self.settle - 1e-9:
-            self._enter("isolating", "test", self._time)
-        elif self.step_name == "test":
-            winner = self.isolate_filter.update(self._static_innovations(y, C, nu[0]), self.s_isolate * self.R)
-            if winner is not None:                                     # eq. (31)
-                self.hypothesis = winner
-                if winner == 0:                                        # a false detection: back to detection
-                    for bf in self.detect_filters:
-                        bf.reset()
-                    self._enter("detecting", "window", self._time)
-                else:
-                    self.isolated = MODES[winner]
-                    self._latch.isolated = self.isolated if self._latch.isolated is None else self._latch.isolated
-                    self._enter("isolated", "done", self._time)
+            return
+        self._cycles += 1
+        winner, p = self._isolation_test()
+        if p[winner] < self.p_confident and self._cycles < self.max_cycles:
+            self.airspeed_request = self.perturbation                  # not confident: one more step
+            self._enter("isolating", "up", self._time)
+            return
+        self.hypothesis = winner
+        if winner == 0:                                                # a false detection: back to detection
+            for bf in self.detect_filters:
+                bf.reset()
+            self._enter("detecting", "window", self._time)
+        else:
+            self.isolated = MODES[winner]
+            self._latch.isolated = self.isolated if self._latch.isolated is None else self._latch.isolated
+            self._enter("isolated", "done", self._time)
 
-    def _static_innovations(self, y: float, C: np.ndarray, nu_0: float) -> np.ndarray:
-        """nu^(i) of the static models, eq. (25)-(27): Y^(0) at x*, Y^(i) with x_ks^(i) in mode i."""
-        nu = [nu_0]
-        for i in range(3):
-            nu.append(nu_0 - C[i] * (self._static[i] - self.x_star[i]))
-        return np.array(nu)
+    def _develop(self, nu_0: float, C: np.ndarray) -> None:
+        """Waits until the fault has developed (Sec. III-E: isolation should not start before the KFs have
+        stabilized): the mean of every KF estimate over the last `develop_window` s has moved by less than
+        `develop_ratio` of its distance from x* since the window before (or `max_develop` s have passed).
+        Then the last window's samples open the isolation record and the airspeed step is asked for (step 1)."""
+        self._record.append((nu_0, C))
+        n = self.n_develop
+        del self._record[:-n]
+        history = np.array(self._history[-2 * n:])
+        elapsed = self._time - self._step_start
+        if len(history) < 2 * n and elapsed < self.max_develop - 1e-9:
+            return
+        stable = False
+        if len(history) == 2 * n:
+            last, before = history[-n:].mean(axis=0), history[:-n].mean(axis=0)
+            stable = bool(np.all(np.abs(last - before) <= self.develop_ratio * np.abs(last - self.x_star)))
+        if stable or elapsed >= self.max_develop - 1e-9:
+            self.airspeed_request = self.perturbation
+            self._enter("isolating", "up", self._time)
+
+    def _isolation_test(self) -> tuple[int, np.ndarray]:
+        """Steps 2 and 4 on the isolation record (departures, see the module docstring): the static models
+        Y^(0..3) (eq. 25-28), Y^(i) with x_ks^(i) in mode i, are fitted by least squares to the record together
+        with a correction (d theta_1*, d I_0*) of the healthy reference x*, which also has to fit the
+        calibration record without a fault; then the Bayes filter of eq. (29)-(31) runs from Pi^f_1 (eq. 33)
+        over their innovations on both records."""
+        A_ref, e_ref = self._reference
+        nu_0 = np.array([row[0] for row in self._record])
+        C = np.array([row[1] for row in self._record])
+        target = np.concatenate([e_ref, nu_0])
+        innovations, static = [], self.x_star.copy()
+        for mode in range(4):                                          # 0: no fault, the reference alone
+            fault = np.zeros(len(target)) if mode == 0 else np.concatenate([np.zeros(len(e_ref)), C[:, mode - 1]])
+            A = np.column_stack([np.vstack([A_ref, C[:, [0, 2]]]), fault])
+            solution = np.linalg.lstsq(A[:, :3] if mode else A[:, :2], target, rcond=None)[0]
+            innovations.append(target - (A[:, :3] if mode else A[:, :2]) @ solution)
+            if mode:
+                static[mode - 1] = self.x_star[mode - 1] + solution[2]   # x_ks^(i)
+        self._static = static
+        self.isolate_filter = BayesFilter(FAULT_PRIOR, len(target) + 1)  # one window: both records
+        for row in np.column_stack(innovations):
+            self.isolate_filter.update(row, self.s_isolate * self.R)
+        p = self.isolate_filter.probabilities
+        return int(np.argmax(p)), p
 
     def _track(self, y: float, C: np.ndarray) -> None:
         self._kalman(y, C)
