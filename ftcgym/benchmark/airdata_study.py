@@ -14,6 +14,7 @@ autopilot then flies the same whatever the detector says, so the criteria compet
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
 
@@ -120,18 +121,14 @@ def study(scenario_name: str, episodes: int, seed: int, policy_name: str = "orac
                 env_overrides) for index in range(episodes)]
     order = {job.key: index for index, job in enumerate(jobs)}
     callbacks = Callbacks(finished=lambda job, row: progress(order[job.key], row)) if progress else None
-    episode = _fly_recorded if record else _fly_job
+    episode = functools.partial(_fly_job, record=True) if record else _fly_job
     return run_jobs(jobs, "local", max(1, min(workers, episodes)), callbacks=callbacks, episode=episode,
                     progress=False)
 
 
-def _fly_job(scenario, policy_name: str, seed: int, env_overrides) -> dict:
+def _fly_job(scenario, policy_name: str, seed: int, env_overrides, record: bool = False) -> dict:
     """`fly` with `run_jobs`' episode signature (module level: it is pickled to the workers)."""
-    return fly(scenario.name, seed, policy_name, env_overrides)
-
-
-def _fly_recorded(scenario, policy_name: str, seed: int, env_overrides) -> dict:
-    return fly(scenario.name, seed, policy_name, env_overrides, record=True)
+    return fly(scenario.name, seed, policy_name, env_overrides, record)
 
 
 def summary(results: list[dict]) -> dict:
