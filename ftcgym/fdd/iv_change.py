@@ -84,7 +84,12 @@ pre-onset excursions of g that cause the false alarms rise over 5-15 s, not at t
 turbulence (L_u / V ~ 46 s) mimics a change of c as long as the no-heading variant needs to see a real
 one (post-onset drift of g ~0.36 per s against a 1-s noise std of ~0.85). Flying 004 Table 1's own
 drag (lambda_1 = 0.36, c 8x larger; 8 flights per variant) raised the signal and the turbulence bias
-alike (8/8 and 6/8 with the defaults). Next: model the turbulence in the test (a GLR with a coloured-noise model of the
+alike (8/8 and 6/8 with the defaults). Also tried, offline on the same 28 seeds per variant, and not adopted: the exact
+rate of gravity's body components, omega x g_B (from the attitude), in place of the small-angle g q and -g p
+of (23)-(24) (the yaw rate times the tilt is left out there, and the heading steps turn at ~1.9 rad/s):
+the pre-onset peak of g with heading changes fell from 5.5 to 4.3 (calm air, seed 9000: 3.6 to 2.9),
+but the post-onset evidence fell with it, and the best (cusum_ratio, threshold) still gave 25/28 for the
+worse variant. Adding the -q w and p w terms of the body-frame kinematics changed nothing. Next: model the turbulence in the test (a GLR with a coloured-noise model of the
 increments), or a wind estimate from the reference model's position error.
 """
 from __future__ import annotations
