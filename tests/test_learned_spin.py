@@ -48,3 +48,16 @@ def test_learned_spin_recovers_from_a_propeller_loss():
     env.close()
     assert scores["isolation_correct"] and not scores["crashed"]
     assert scores["recovered"] and scores["recovery_time"] - scores["fault_onset"] < 1.5 and scores["altitude_loss"] < 1.5
+
+
+@pytest.mark.parametrize("policy, scenario, flies", [("learned-spin", "qp-mission", "ftcgym/Quadrotor-v0"),
+                                                      ("learned-airspeed", "quad-rotor-loss-hover",
+                                                       "ftcgym/QuadPlaneAutopilot-v0")])
+def test_shipped_model_on_the_wrong_vehicle_says_which_it_flies(policy, scenario, flies):
+    from ftcgym.agents import make_policy
+    from ftcgym.benchmark.runner import make_env
+    from ftcgym.benchmark.scenarios import get_scenario
+    env = make_env(get_scenario(scenario))
+    with pytest.raises(ValueError, match=f"flies {flies}, not"):
+        make_policy(policy, env)
+    env.close()

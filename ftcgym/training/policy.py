@@ -109,4 +109,14 @@ def load_policy(path, env):
     _, _, manifest_path = model_files(path)
     manifest = json.loads(manifest_path.read_text()) if manifest_path.is_file() else {}
     env_id = manifest.get("config", {}).get("env_id", TASK_ENV_ID)
+    _check_vehicle(path, env_id, env.unwrapped)
     return POLICY_CLASSES.get(env_id, LearnedPolicy).load(path, env)
+
+
+def _check_vehicle(path, env_id: str, base) -> None:
+    """A model flies only the kind of env its task was built on: say so before anything else fails."""
+    flies = {TASK_ENV_ID: ("ftcgym/Quadrotor-v0", not hasattr(base.params, "hover_thrust_coefficient")),
+             AIRSPEED_ENV_ID: ("ftcgym/QuadPlaneAutopilot-v0", hasattr(base, "autopilot"))}
+    if env_id in flies and not flies[env_id][1]:
+        raise ValueError(f"policy: the model {path} was trained on {env_id} and flies {flies[env_id][0]}, "
+                         f"not {type(base).__name__}")
