@@ -14,7 +14,8 @@ Structure, per agent step:
    cross-track error and the altitude (forward flight).
 3. Outer loop: the acceleration becomes an attitude and a hover-rotor collective. The wing's lift, from the
    model at the given airspeed, the measured skew and alpha ~ pitch (001 eq. 8.6), is subtracted from what
-   the rotors must carry; in forward flight the pitch follows the altitude error around the trim pitch.
+   the rotors must carry; in forward flight the pitch follows the altitude error around the trim pitch. On
+   entering cruise the rotors' share is handed to the wing over `transition_blend_time`, not in one step.
 4. Inner loop: geometric attitude error (Lee et al. 2010) -> rate command -> angular acceleration -> moment
    (model inversion with the airframe's own aerodynamic moment at the given airspeed), allocated over the
    hover rotors and the surfaces by regularised weighted least squares; the surfaces' columns come from the
@@ -78,6 +79,13 @@ class AutopilotGains:
     throttle_slew: float = 0.5               # 1/s
     # mission
     transition_done_speed_margin: float = 1.0   # m/s below cruise speed that ends the transition
+    # s over which the hover rotors hand the weight over to the wing on entering cruise: they keep making up
+    # what the wing does not carry at the actual alpha (the transition's rule), faded out linearly into the
+    # cruise rule (lift at the trim alpha). Switched in one step, they fell from ~450 to ~50 rad/s in 0.2 s
+    # while alpha was still ~-12 deg against a trim of ~+4 deg (upwind in 7 m/s), and the airframe dived,
+    # enough to raise a false pitot alarm. PX4's VTOL front transition likewise blends the multicopter motors
+    # out over a blend time after the transition airspeed is reached rather than cutting them.
+    transition_blend_time: float = 1.5
     back_transition_done_speed: float = 3.0     # m/s
     back_transition_decel: float = 1.5          # m/s^2, typical deceleration of the back transition
 
@@ -276,10 +284,23 @@ class QuadPlaneAutopilot:
             bank = float(np.clip(math.atan2(float(accel[:2] @ right), GRAVITY), -bank_limit, bank_limit))
             pitch = float(np.clip(pitch, -math.radians(self.gains.max_pitch_deg), math.radians(self.gains.max_pitch_deg)))
             R_des = _euler_matrix(bank, pitch, yaw)
-        needed = float(-force @ R_des[:, 2]) - self._wing_lift(nav, airspeed, pitch is not None)   # along -z_des
+        thrust = float(-force @ R_des[:, 2])                              # along -z_des, rotors + wing
+        needed = thrust - self._wing_lift(nav, airspeed, pitch is not None)
         if self.phase == "cruise" and needed < self.gains.rotor_assist_floor * m * GRAVITY:
             needed = 0.0                       # the wing flies; the rotors stay off rather than flicker
+        share = self._cruise_share()
+        if share < 1.0:                        # handing over from the transition: see transition_blend_time
+            transition = max(thrust - self._wing_lift(nav, airspeed, False), 0.0)
+            needed = share * needed + (1.0 - share) * transition
         return R_des, max(needed, 0.0)
+
+    def _cruise_share(self) -> float:
+        """How far the rotors' collective has moved from the transition's rule to the cruise rule: 0 on
+        entering cruise, 1 after `transition_blend_time` (and in every other phase, which has its own rule)."""
+        blend = self.gains.transition_blend_time
+        if self.phase != "cruise" or blend <= 0.0:
+            return 1.0
+        return min((self._time - self._phase_start) / blend, 1.0)
 
     def _wing_lift(self, nav, airspeed, at_trim: bool = False) -> float:
         """Lift along body -z from the model at the given airspeed and the measured skew, at alpha = pitch minus
