@@ -29,14 +29,23 @@ QUADPLANE_POLICIES = ("autopilot", "pitot-only", "oracle-airspeed", "airspeed-sw
 POLICY_NAMES = tuple(POLICY_DESCRIPTIONS)
 
 
+def is_quadplane(base) -> bool:
+    """Whether an unwrapped env flies the quad-plane (its parameter set has hover rotors)."""
+    return hasattr(base.params, "hover_thrust_coefficient")
+
+
+def flies_airspeed(base) -> bool:
+    """Whether an unwrapped env is QuadPlaneAutopilot-v0, whose action is the airspeed the autopilot uses."""
+    return hasattr(base, "autopilot")
+
+
 def make_policy(name: str, env) -> Policy:
     """The named benchmark policy for `env` (a gymnasium env, wrapped or not)."""
     if name in ("learned-spin", "learned-airspeed"):
         from ftcgym.training.shipped import load_shipped
         return load_shipped(name, env)
     base = env.unwrapped
-    quadplane = hasattr(base.params, "hover_thrust_coefficient")
-    if name in QUADPLANE_POLICIES or quadplane:
+    if name in QUADPLANE_POLICIES or is_quadplane(base):
         return _quadplane_policy(name, base)
     if name == "nominal":
         return NominalController(base.params, base.agent_hz)
@@ -48,7 +57,7 @@ def make_policy(name: str, env) -> Policy:
 
 
 def _quadplane_policy(name: str, base) -> Policy:
-    autopilot_env = hasattr(base, "autopilot")          # QuadPlaneAutopilot-v0: the action is an airspeed
+    autopilot_env = flies_airspeed(base)
     airspeed = {"pitot-only": PitotOnlyPolicy, "oracle-airspeed": OracleAirspeedPolicy,
                 "airspeed-switch": AirspeedSwitchPolicy, "synthetic-only": SyntheticOnlyPolicy}
     wanted = False if name == "autopilot" else (True if name in airspeed else None)

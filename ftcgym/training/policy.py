@@ -24,6 +24,7 @@ import json
 import numpy as np
 
 from ftcgym.training.airspeed_task import ENV_ID as AIRSPEED_ENV_ID, LearnedAirspeedPolicy
+from ftcgym.agents import flies_airspeed, is_quadplane
 from ftcgym.agents.quadrotor_control import UP
 from ftcgym.agents.spin_recovery import thrust_axis_reference_for
 from ftcgym.geometry import rotation_matrix
@@ -115,8 +116,8 @@ def load_policy(path, env):
 
 def _check_vehicle(path, env_id: str, base) -> None:
     """A model flies only the kind of env its task was built on: say so before anything else fails."""
-    flies = {TASK_ENV_ID: ("ftcgym/Quadrotor-v0", not hasattr(base.params, "hover_thrust_coefficient")),
-             AIRSPEED_ENV_ID: ("ftcgym/QuadPlaneAutopilot-v0", hasattr(base, "autopilot"))}
+    flies = {TASK_ENV_ID: ("ftcgym/Quadrotor-v0", not is_quadplane(base)),
+             AIRSPEED_ENV_ID: ("ftcgym/QuadPlaneAutopilot-v0", flies_airspeed(base))}
     if env_id in flies and not flies[env_id][1]:
         raise ValueError(f"policy: the model {path} was trained on {env_id} and flies {flies[env_id][0]}, "
                          f"not {type(base).__name__}")
