@@ -54,6 +54,19 @@ Where this departs from the paper, and why (numbers measured on ftcgym's square 
   threshold all give 18-19/20 and 19-20/20: the defaults sit inside that plateau.
   `mueller2014`'s lambda_1 / m is ~8x smaller than 004 Table 1's, so the mass shows ~8x more weakly.
 - The yaw-rate coupling that (28) linearises away is kept; it is parameter-free (see `_grid_step`).
+- The accelerometer's x, y bias is estimated and taken out of that coupling (`AccelBiasEstimate`): the
+  coupling stands for r times the body air velocity -(a - b) / c, and a per-flight constant bias b (our
+  IMU: sigma 0.05 m/s^2, of the order of the drag signal c V ~ 0.1-0.2 m/s^2) turns with the body, so every
+  heading step left T b Delta r in (29), in step with the instruments, which turn too. Found in calm air
+  (mean wind only, seed 9000): with heading changes the CUSUM peaked at 3.6 before the onset, at the
+  27 s heading step and on the y axis; with the simulated bias subtracted from the accelerometer it peaked
+  at 0.75 (0.53 without heading changes) and the post-onset evidence stayed (alarm at 43.6 s). Estimated
+  online (IV with the model's yaw-rate difference as instrument, no forgetting, ridge
+  `accel_bias_prior` = 1e-9, ~1/40 of one heading step's excitation; 1e-10 and 1e-8 score the same):
+  peak 0.71, estimate within 0.02 m/s^2 of the simulated bias by 35 s. Over the 28 recorded seeds with
+  heading changes (1000-1027) the largest pre-onset peak fell from 5.5 to 4.8 and the false alarms at the
+  4.3 threshold from 3 to 2. Without heading changes r_hat = 0 and b stays 0: nothing changes. No
+  threshold was re-tuned for it.
 - Samples are left out of the sums while the measured roll/pitch rate exceeds `max_rate` (and for
   `gate_hold` s after, the filter's memory): the small-angle, slow-rate linearisation (23)-(24) behind
   (28) does not hold there (the nominal controller swings to ~3 rad/s at corners and heading steps).
@@ -75,8 +88,15 @@ before, out of 10 (no heading changes / heading changes):
   --workers 1`: 9 / 8. Without heading changes one miss (no alarm by 60 s) and late alarms (46.6-59.5 s,
   median delay 14.9 s, four after 58 s); with them two false alarms (17.4 s, 27.7 s: pre-onset peaks of
   g above 4.3 from heading steps) and alarms at 43.2-44.2 s otherwise.
-So issue 3's acceptance (9 of 10 each) holds without heading changes and NOT with them. Why it is hard
-to do better (measured offline on the increments of env seeds 1000-1027, 28 flights per variant): the
+With the accelerometer-bias estimate (same thresholds; out of 10, no heading changes / heading changes):
+  `--seed 100`: 9 / 9. The 27.7 s false alarm (a heading step) is gone; the one at 17.45 s stays: it
+  builds on the x axis over 14-18 s, on the first leg before any heading step (turbulence, below).
+  `--seed 101` (not flown before): 9 / 10; without heading changes one miss (no alarm by 60 s), alarms
+  at 44.2-59.6 s (median delay 7.0 s); with them alarms at 42.9-44.3 s. With `accel_bias_prior=None`
+  (the old model) the same episodes with heading changes give 10 / 10 too
+  (alarms 42.4-44.2 s): this seed does not tell the two apart; `--seed 100` and the calm flight do.
+So issue 3's acceptance (alarm after onset and none before in 9 of 10 each) holds on both held-out seeds.
+The margin is thin, for the reason below. Why it is hard to do better (before the bias estimate) (measured offline on the increments of env seeds 1000-1027, 28 flights per variant): the
 best single (cusum_ratio, threshold) in-sample gives 25-26/28 per variant (89-93%), the defaults 26/28
 and 25/28; seeds 1020-1027, recorded after the tuning, give 6/8 and 5/8 with the defaults. The
 pre-onset excursions of g that cause the false alarms rise over 5-15 s, not at the heading steps
@@ -89,8 +109,10 @@ rate of gravity's body components, omega x g_B (from the attitude), in place of 
 of (23)-(24) (the yaw rate times the tilt is left out there, and the heading steps turn at ~1.9 rad/s):
 the pre-onset peak of g with heading changes fell from 5.5 to 4.3 (calm air, seed 9000: 3.6 to 2.9),
 but the post-onset evidence fell with it: the best (cusum_ratio, threshold) gave 25/28 for the worse
-variant (26/28 without it). Adding the -q w and p w terms of the body-frame kinematics changed nothing. Next: model the turbulence in the test (a GLR with a coloured-noise model of the
-increments), or a wind estimate from the reference model's position error.
+variant (26/28 without it). Adding the -q w and p w terms of the body-frame kinematics changed nothing; a gyro
+yaw-bias parameter beside the accelerometer's was not identifiable (estimates 10-100x the simulated bias).
+Next: model the turbulence in the test (a GLR with a coloured-noise model of the increments), or a wind
+estimate from the reference model's position error.
 """
 from __future__ import annotations
 
@@ -250,6 +272,41 @@ class IvEstimate:
         self.D_peak = max(self.D_peak, self.D)
 
 
+class AccelBiasEstimate:
+    """The accelerometer's x, y bias b, estimated jointly with c by IV on (29) with the yaw coupling.
+
+    The coupling term r a of `IvChangeDetector._grid_step` stands for r times the body air velocity
+    -(a - b) / c: a constant bias b is fixed in the body while the velocity turns with it, so it leaves
+    T b_y Delta r on the x axis and -T b_x Delta r on the y axis, a model error wherever the yaw rate changes
+    (a heading step). With Delta r the filtered measured yaw rate's grid difference and Delta r_hat the
+    reference model's (its instrument), (29) reads y_x = c phi_x - b_y T Delta r, y_y = c phi_y + b_x T Delta r:
+    three parameters, linear, IV-estimated from sums without forgetting (b is a per-flight constant). A ridge
+    `prior` pulls b to 0 until the yaw excitation sum T^2 Delta r Delta r_hat outweighs it; without heading
+    changes r_hat stays 0 and so does b.
+    """
+
+    def __init__(self, c: float, prior: float):
+        self.c, self.prior = float(c), float(prior)
+        self.reset()
+
+    def reset(self) -> None:
+        self.A, self.B = np.zeros((3, 3)), np.zeros(3)
+        self.bias = np.zeros(2)
+
+    def update(self, zeta, phi, y, dr: float, dr_hat: float) -> None:
+        regressors = np.array(((phi[0], 0.0, -dr), (phi[1], dr, 0.0)))
+        instruments = np.array(((zeta[0], 0.0, -dr_hat), (zeta[1], dr_hat, 0.0)))
+        self.A += instruments.T @ regressors
+        self.B += instruments.T @ y
+        if self.A[0, 0] > 0.0:
+            ridge = np.diag((0.0, self.prior, self.prior))
+            self.bias = np.linalg.solve(self.A + ridge, self.B + ridge @ np.array((self.c, 0.0, 0.0)))[1:]
+
+    def correction(self, dr: float) -> np.ndarray:
+        """What the bias leaves in y (x, y axes), to subtract: (-b_y T Delta r, b_x T Delta r)."""
+        return np.array((-self.bias[1] * dr, self.bias[0] * dr))
+
+
 class IvChangeDetector:
     """Payload change detector of 004: IV estimate of c = lambda_1 / m from the residuals r1, r2 (29).
 
@@ -269,6 +326,8 @@ class IvChangeDetector:
     task's seeds 1000-1019, both variants (recorded episodes replayed offline; see the module docstring).
     `gate`: "measured" (measured p, q, r; default), "reference" (the reference model's p_hat, q_hat and
     yaw rate) or "none"; `max_yaw_rate` (rad/s) also gates on the yaw rate (off by default).
+    `accel_bias_prior`: ridge of the accelerometer-bias estimate (`AccelBiasEstimate`) that the yaw coupling
+    needs; None leaves the bias out (the model before it). `status()["accel_bias"]` reports the estimate.
     """
 
     name = "iv_change"
@@ -282,6 +341,7 @@ class IvChangeDetector:
                  warmup: float = 10.0, cutoff_hz: float = 2.0, filter_order: int = 4,
                  weight_hz: float | None = 0.2, max_rate: float = 1.8, gate_hold: float = 3.0,
                  gate: str = "measured", max_yaw_rate: float = math.inf, yaw_coupling: bool = True,
+                 accel_bias_prior: float | None = 1e-9,
                  kp: float = 1.6, kd: float = 2.4, k_att: float = 7.0, k_yaw: float = 2.5):
         for label, value in (("mass", mass), ("lambda_1", lambda_1), ("dt", dt), ("T", T)):
             if not (math.isfinite(value) and value > 0):
@@ -309,6 +369,9 @@ class IvChangeDetector:
             raise ValueError(f"IvChangeDetector: gate must be 'measured', 'reference' or 'none', got {gate!r}")
         self.gate, self.max_yaw_rate = gate, float(max_yaw_rate)
         self.yaw_coupling = bool(yaw_coupling)
+        # None: no accelerometer-bias estimate (it only matters through the yaw coupling)
+        self.accel_bias = (AccelBiasEstimate(c, accel_bias_prior)
+                           if yaw_coupling and accel_bias_prior is not None else None)
         self._filter = (cutoff_hz, filter_order, self.dt, weight_hz)
         self.reference_model = ReferenceModel(c, self.dt, kp, kd, k_att, k_yaw)
         self.cost = IvCost(lam, n_w, (2, 3))
@@ -328,6 +391,8 @@ class IvChangeDetector:
         self.cost.reset()
         self.estimate.reset()
         self.latch.reset()
+        if self.accel_bias is not None:
+            self.accel_bias.reset()
         self.lowpass = LowPassBank(*self._filter)
         self._last = None            # (time, filtered channels) of the previous reading
         self._grid = []              # the last three grid samples (t-2, t-1, t)
@@ -356,8 +421,9 @@ class IvChangeDetector:
         if self.gate != "none" and (gate_p * gate_p + gate_q * gate_q > self.max_rate * self.max_rate
                                     or abs(gate_r) > self.max_yaw_rate):
             self._gate_until = time + self.gate_hold
-        # Channels: measured a_x, a_y, p, q, r a_y, r a_x; instruments a_hat_x, a_hat_y, p_hat, q_hat.
-        u = np.array((a_x, a_y, p, q, r * a_y, r * a_x, *instruments))
+        # Channels: measured a_x, a_y, p, q, r a_y, r a_x; instruments a_hat_x, a_hat_y, p_hat, q_hat;
+        # measured and model yaw rates r, r_hat (the accelerometer-bias regressor and its instrument).
+        u = np.array((a_x, a_y, p, q, r * a_y, r * a_x, *instruments, r, yaw_rate_hat))
         if self._last is None:
             self._t0 = time
             self.lowpass.start(u)
@@ -374,7 +440,9 @@ class IvChangeDetector:
                 "cusum": np.array([self.cusum])}
 
     def status(self) -> dict:
+        bias = [0.0, 0.0] if self.accel_bias is None else self.accel_bias.bias.tolist()
         return {**self.latch.status(), "J": self.J.tolist(), "c_hat": self.c_hat, "c_nominal": self.c,
+                "accel_bias": bias,
                 "c_ratio": self.c_hat / self.c, "cusum": self.cusum, "cusum_threshold": self.cusum_threshold,
                 "ratio_threshold": self.ratio_threshold, "threshold": self.threshold}
 
@@ -396,6 +464,11 @@ class IvChangeDetector:
         phi = T * np.array((g * T * s2[3] - (s1[0] - s2[0]), -g * T * s2[2] - (s1[1] - s2[1])))
         # Instruments: the same regressors from the reference model's signals (004 Sec. 4.2).
         zeta = T * np.array((g * T * s2[9] - (s1[6] - s2[6]), -g * T * s2[8] - (s1[7] - s2[7])))
+        if self.accel_bias is not None:    # take out the accelerometer bias the yaw coupling carries
+            dr = T * (s1[10] - s2[10])
+            if t_k >= self._gate_until:
+                self.accel_bias.update(zeta, phi, y, dr, T * (s1[11] - s2[11]))
+            y = y - self.accel_bias.correction(dr)
         # r1, r2 at the nominal c: identical to (29) with theta = [-2 + cT, 1 - cT, c g T^2].
         self.residual = y - self.c * phi
         # The paper's instrument vectors Z (30): [-a_hat(t-1), -a_hat(t-2), +-q_hat/p_hat(t-2)].
