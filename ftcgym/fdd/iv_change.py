@@ -290,17 +290,20 @@ class AccelBiasEstimate:
         self.reset()
 
     def reset(self) -> None:
-        self.A, self.B = np.zeros((3, 3)), np.zeros(3)
+        # The ridge toward theta_0 = (c, 0, 0) sits in the sums from the start: it adds prior on b's diagonal
+        # and nothing to B (its c entry is 0).
+        self.A, self.B = np.diag((0.0, self.prior, self.prior)), np.zeros(3)
         self.bias = np.zeros(2)
 
     def update(self, zeta, phi, y, dr: float, dr_hat: float) -> None:
-        regressors = np.array(((phi[0], 0.0, -dr), (phi[1], dr, 0.0)))
-        instruments = np.array(((zeta[0], 0.0, -dr_hat), (zeta[1], dr_hat, 0.0)))
-        self.A += instruments.T @ regressors
-        self.B += instruments.T @ y
-        if self.A[0, 0] > 0.0:
-            ridge = np.diag((0.0, self.prior, self.prior))
-            self.bias = np.linalg.solve(self.A + ridge, self.B + ridge @ np.array((self.c, 0.0, 0.0)))[1:]
+        # instruments (zeta_x, 0, -dr_hat), (zeta_y, dr_hat, 0) times regressors (phi_x, 0, -dr), (phi_y, dr, 0)
+        A, B = self.A, self.B
+        A[0] += (zeta[0] * phi[0] + zeta[1] * phi[1], zeta[1] * dr, -zeta[0] * dr)
+        A[1] += (dr_hat * phi[1], dr_hat * dr, 0.0)
+        A[2] += (-dr_hat * phi[0], 0.0, dr_hat * dr)
+        B += (zeta[0] * y[0] + zeta[1] * y[1], dr_hat * y[1], -dr_hat * y[0])
+        if A[0, 0] > 0.0:
+            self.bias = np.linalg.solve(A, B)[1:]
 
     def correction(self, dr: float) -> np.ndarray:
         """What the bias leaves in y (x, y axes), to subtract: (-b_y T Delta r, b_x T Delta r)."""
