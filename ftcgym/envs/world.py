@@ -43,28 +43,34 @@ class PyBulletWorld:
 
     def __init__(self, physics_hz: float, mass: float, inertia, body_size, gui: bool = False):
         self.client = p.connect(p.GUI if gui else p.DIRECT)
-        c = self.client
-        p.setGravity(0.0, 0.0, -GRAVITY, physicsClientId=c)
-        p.setTimeStep(1.0 / physics_hz, physicsClientId=c)
-        ground = p.createCollisionShape(p.GEOM_PLANE, physicsClientId=c)
-        self.ground = p.createMultiBody(0.0, ground, physicsClientId=c)
-        half = [s / 2 for s in body_size]
-        shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=c)
-        visual = p.createVisualShape(p.GEOM_BOX, halfExtents=half, rgbaColor=[0.2, 0.3, 0.8, 1], physicsClientId=c)
-        self.body = p.createMultiBody(mass, shape, visual, basePosition=[0, 0, 1], physicsClientId=c)
-        # Aerodynamic damping is modelled explicitly; Bullet's default damping would add an unmodelled drag.
-        p.changeDynamics(self.body, -1, localInertiaDiagonal=list(inertia), linearDamping=0.0,
-                         angularDamping=0.0, lateralFriction=0.8, restitution=0.0, physicsClientId=c)
+        self.physics_hz, self.body_size = physics_hz, body_size
         self.mass = mass
         self.inertia = list(inertia)
-        self.half_height = half[2]
-        self._saved = p.saveState(physicsClientId=c)
+        self.half_height = body_size[2] / 2
+        self._build()
+
+    def _build(self) -> None:
+        """The ground plane and the vehicle's box, in a freshly reset simulation."""
+        c = self.client
+        p.resetSimulation(physicsClientId=c)
+        p.setGravity(0.0, 0.0, -GRAVITY, physicsClientId=c)
+        p.setTimeStep(1.0 / self.physics_hz, physicsClientId=c)
+        ground = p.createCollisionShape(p.GEOM_PLANE, physicsClientId=c)
+        self.ground = p.createMultiBody(0.0, ground, physicsClientId=c)
+        half = [s / 2 for s in self.body_size]
+        shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=c)
+        visual = p.createVisualShape(p.GEOM_BOX, halfExtents=half, rgbaColor=[0.2, 0.3, 0.8, 1], physicsClientId=c)
+        self.body = p.createMultiBody(self.mass, shape, visual, basePosition=[0, 0, 1], physicsClientId=c)
+        # Aerodynamic damping is modelled explicitly; Bullet's default damping would add an unmodelled drag.
+        p.changeDynamics(self.body, -1, localInertiaDiagonal=self.inertia, linearDamping=0.0,
+                         angularDamping=0.0, lateralFriction=0.8, restitution=0.0, physicsClientId=c)
 
     def reset(self, position, quat, velocity, body_rates) -> None:
-        """Restore the saved world (contacts, solver caches) and place the body: cheap, no rebuild."""
+        """Rebuild the world and place the body. A rebuild, not restoreState: Bullet keeps caches that
+        saveState does not hold (the first episode after construction stepped differently from the later ones
+        when the vehicle started on the ground), and a seeded reset must give the same steps every time."""
         c = self.client
-        p.restoreState(self._saved, physicsClientId=c)
-        self.set_mass(self.mass)
+        self._build()
         p.resetBasePositionAndOrientation(self.body, vec_to_ned(position).tolist(), quat_from_ned(quat),
                                           physicsClientId=c)
         rates_world = rotation_matrix(quat) @ np.asarray(body_rates, dtype=float)
