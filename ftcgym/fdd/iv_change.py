@@ -285,8 +285,8 @@ class AccelBiasEstimate:
     changes r_hat stays 0 and so does b.
     """
 
-    def __init__(self, c: float, prior: float):
-        self.c, self.prior = float(c), float(prior)
+    def __init__(self, prior: float):
+        self.prior = float(prior)
         self.reset()
 
     def reset(self) -> None:
@@ -373,7 +373,7 @@ class IvChangeDetector:
         self.gate, self.max_yaw_rate = gate, float(max_yaw_rate)
         self.yaw_coupling = bool(yaw_coupling)
         # None: no accelerometer-bias estimate (it only matters through the yaw coupling)
-        self.accel_bias = (AccelBiasEstimate(c, accel_bias_prior)
+        self.accel_bias = (AccelBiasEstimate(accel_bias_prior)
                            if yaw_coupling and accel_bias_prior is not None else None)
         self._filter = (cutoff_hz, filter_order, self.dt, weight_hz)
         self.reference_model = ReferenceModel(c, self.dt, kp, kd, k_att, k_yaw)
