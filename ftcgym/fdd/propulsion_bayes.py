@@ -418,9 +418,9 @@ class PropulsionBayesDetector:
         innovations, static = [], self.x_star.copy()
         for mode in range(4):                                          # 0: no fault, the reference alone
             fault = np.zeros(len(target)) if mode == 0 else np.concatenate([np.zeros(len(e_ref)), C[:, mode - 1]])
-            A = np.column_stack([np.vstack([A_ref, C[:, [0, 2]]]), fault])
-            solution = np.linalg.lstsq(A[:, :3] if mode else A[:, :2], target, rcond=None)[0]
-            innovations.append(target - (A[:, :3] if mode else A[:, :2]) @ solution)
+            A = np.column_stack([np.vstack([A_ref, C[:, [0, 2]]]), fault])[:, :3 if mode else 2]
+            solution = np.linalg.lstsq(A, target, rcond=None)[0]
+            innovations.append(target - A @ solution)
             if mode:
                 static[mode - 1] = self.x_star[mode - 1] + solution[2]   # x_ks^(i)
         self._static = static
