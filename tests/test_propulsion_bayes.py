@@ -182,3 +182,18 @@ def test_isolation_refits_the_healthy_reference_with_each_static_model():
     winner, p = det._isolation_test()
     assert MODES[winner] == "static_friction" and p[winner] > 0.99
     assert det._static[2] - det.x_star[2] == pytest.approx(d_I0, rel=0.02)
+
+
+def test_propulsion_scenarios_fly_003s_sensor_model_and_can_fly_the_001_pitot():
+    """003 Sec. IV-B: V_a noise covariance 7e-4 and no lag, like omega's and I_e's; an override restores the pitot."""
+    from ftcgym.benchmark.runner import make_env
+    from ftcgym.benchmark.scenarios import get_scenario
+
+    for overrides, noise, lag in ((None, math.sqrt(7e-4), 0.0), ({"sensors": {}}, 0.3, 0.05)):
+        env = make_env(get_scenario("qp-propulsion-viscous"), overrides)
+        config = env.unwrapped.plane.sensors.config
+        env.close()
+        assert config.pitot_noise == pytest.approx(noise)
+        assert config.pitot_time_constant == pytest.approx(lag)
+        assert config.pusher_speed_noise == pytest.approx(math.sqrt(0.5), rel=0.01)
+        assert config.pusher_current_noise == pytest.approx(math.sqrt(1e-5), rel=0.02)
