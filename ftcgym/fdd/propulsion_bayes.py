@@ -61,11 +61,11 @@ Per sample (`update`):
    new seed (`--seed 306`) and on the one just missed (`--seed 305`): no false alarm, every fault detected
    (median delays icing 14.5 / 14.8 s, viscous 34.2 / 34.8 s, static 33.8 / 34.8 s) and isolated, 10/10 per
    mode on each seed. With the 001 pitot (`--env-kwargs '{"sensors": {}}'`, `--seed 306`): isolation 10/10,
-   10/10, 9/10 (static), but 3 false alarms in 10 fault-free flights, late (127-294 s), as on tuning seed 1000
-   (3 in 10). Not yet understood: R, the Bayes filters' scale from the calibration residual, is 1.0-2x the
-   residual's variance in detection there (2.2-2.9x with 003's sensors), but white residuals of variance R
-   alarm in ~0.2% of 20 s windows (offline); replaying the alarmed tuning flights, the pitot's noise alone or
-   its lag alone raised no alarm, both together 3 in 6 noise draws.
+   10/10, 9/10 (static), but false alarms in fault-free flights, late: 3 in 10 (3 in 10 on tuning seed 1000
+   too) while the model's omega_dot took the pitot's raw samples, 2 in 10 (0 on seed 1000) with the airspeed
+   low-passed. What remains is not understood: R, the Bayes filters' scale from the calibration residual, is
+   1.0-2x the residual's variance in detection there (2.2-2.9x with 003's sensors), and white residuals of
+   variance R alarm in only ~0.2% of 20 s windows (offline).
 
 The detector only runs while the pusher drives wing-borne flight (airspeed >= `min_airspeed` and current
 >= `min_current`, held for `settle` s) below 98% of the ESC's speed limit (there the speed is clipped and
