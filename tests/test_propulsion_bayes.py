@@ -98,6 +98,10 @@ def test_bad_reading_raises_naming_the_key():
         det.update({"pusher_speed": [700.0], "pusher_current": [float("nan")], "pitot_airspeed": [18.0]}, 0.0)
     with pytest.raises(ValueError, match="pitot_airspeed"):
         det.update({"pusher_speed": [700.0], "pusher_current": [15.0], "pitot_airspeed": [float("inf")]}, 0.0)
+    with pytest.raises(ValueError, match="omega_smoothing"):
+        PropulsionBayesDetector(VSQP, 100.0, omega_smoothing=-0.1)
+    with pytest.raises(ValueError, match="omega smoothing"):
+        PropulsionBayesDetector(VSQP, 100.0, omega_smoothing=0.3)      # 30 samples: more than half a block
 
 
 def test_model_error_scales_the_coefficients():

@@ -249,7 +249,7 @@ class PropulsionBayesDetector:
             raise ValueError(f"sample_hz {sample_hz!r} and fdi_hz {fdi_hz!r}: need 0 < fdi_hz <= sample_hz")
         for key, value in (("s_detect", s_detect), ("s_isolate", s_isolate), ("detection_window", detection_window),
                            ("calibration_seconds", calibration_seconds), ("level_seconds", level_seconds),
-                           ("develop_window", develop_window)):
+                           ("develop_window", develop_window), ("omega_smoothing", omega_smoothing)):
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"{key}: must be a positive number, got {value!r}")
         self.model = PropulsionModel(params, coefficient_error, error_seed)
