@@ -193,7 +193,8 @@ class _BlockAverager:
 
     def _boundary(self, b: int) -> tuple[float, float]:
         """(centred estimate, instrument) of the speed at row index b."""
-        m, rows = self.m, np.array(self.rows[b - 2 * self.m:b + self.m + 1])
+        m = self.m
+        rows = np.array(self.rows[b - 2 * m:b + m + 1])
         detrended, w_b = rows[:, 0] - rows[:, 3], rows[2 * m, 3]
         return float(np.mean(detrended[m:])) + w_b, float(np.mean(detrended[:m])) + w_b
 
@@ -318,7 +319,9 @@ class PropulsionBayesDetector:
         m = self.model
         previous = airspeed if self._rate_airspeed is None else self._rate_airspeed
         self._rate_airspeed = previous + self._rate_alpha * (airspeed - previous)
-        rate = (m.k_e * current - float(m.regressors(omega, self._rate_airspeed) @ self.x_star)) / self.Theta
+        theta_1, c_v, i_0 = self.x_star                               # C x* of eq. (11), without building C
+        load = float(m.nominal_torque(omega, self._rate_airspeed)) * theta_1 + omega * c_v + m.k_e * i_0
+        rate = (m.k_e * current - load) / self.Theta
         block = self._averager.add(omega, current, airspeed, rate)
         if block is not None:
             self._fdi_sample(*block)
