@@ -33,6 +33,8 @@ def test_threshold_table_one_sided_and_round_trip(tmp_path):
     rows = {r["criterion"]: r for r in study.threshold_table(segments)}
     # one-sided: the innovation sits at -0.05 +- 0.01, so its positive side never nears the threshold
     assert rows["pusher_rpm[3] norm"]["p_single"] == 0.0
+    assert "pusher_rpm pitot confirmation" not in rows                 # its signal was not recorded: skipped
+    assert ("pusher_rpm pitot confirmation", "pusher_rpm_pitot_confirmation", 3.0, 0.2, 1) in study.criteria()
     assert rows["pitot derivative"]["independent"] and rows["pitot derivative"]["runs_seen"] == 0
     path = tmp_path / "s.npz"
     study.save_segments(str(path), segments)
@@ -68,3 +70,16 @@ def test_zeroed_pusher_rpm_isolated_within_a_second_in_cruise():
     assert 0.0 < out["delay_pusher_rpm"] <= 1.0
     assert out["alarm_time_table2"] is None and out["alarm_time_cusum"] is None
     assert out["airspeed_rmse_after_detection"] < 2.33           # 001's precision after the fault
+
+
+def test_pitot_confirmation_alone_isolates_the_zeroed_pusher_rpm():
+    """With the a_x norm row out of reach (1e3 m/s^2), the pusher-RPM alarm can come only from its pitot
+    confirmation: the EKF airspeed falls under the sound pitot after the a_x burst, within 1 s of the onset."""
+    from ftcgym.fdd.airdata_ekf import INNOVATION_DETECTORS
+    detectors = {sensor: dict(spec) for sensor, spec in INNOVATION_DETECTORS.items()}
+    detectors["pusher_rpm"]["norm"] = (1e3, *detectors["pusher_rpm"]["norm"][1:])
+    faults = [{"kind": "pusher_rpm_sensor", "time": 32.0}]
+    out = study.fly("qp-rpm-sensor-fault", seed=2, env_overrides={"faults": faults, "max_episode_seconds": 35.0},
+                    detector_kwargs={"innovation_detectors": detectors})
+    assert 0.0 < out["delay_pusher_rpm"] <= 1.0 and out["pusher_rpm_criterion"] == "pitot_confirmation"
+    assert out["alarm_time_table2"] is None and out["alarm_time_cusum"] is None

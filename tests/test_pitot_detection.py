@@ -4,8 +4,8 @@ import pytest
 
 from ftcgym.agents import make_policy
 from ftcgym.agents.airspeed_policies import AirspeedSwitchPolicy, SyntheticOnlyPolicy
-from ftcgym.fdd.pitot_detection import (CUSUM_DEFAULT, TABLE_2_DERIVATIVE, TABLE_2_NORM, PitotResidualDetector,
-                                       ResidualCusum, ThresholdCriterion)
+from ftcgym.fdd.pitot_detection import (CUSUM_DEFAULT, TABLE_2_DERIVATIVE, TABLE_2_NORM, PitotConfirmation,
+                                       PitotResidualDetector, ResidualCusum, ThresholdCriterion)
 
 HZ = 25.0
 
@@ -159,3 +159,27 @@ def test_airspeed_switch_ignores_a_sensor_alarm():
     assert policy.act(obs, info)[0] == pytest.approx(18.0) and policy.switched_at is None
     info["fdd"]["airdata_ekf"].update(pitot_alarm=True, pitot_alarm_time=2.0)
     assert policy.act(obs, info)[0] == pytest.approx(15.0) and policy.switched_at == 2.0
+
+
+def first_confirmation(levels, residuals, armed=True):
+    """Sample index at which PitotConfirmation(0.2 m/s^2 within 2 s, 3 m/s held 0.2 s) first fires, or None."""
+    c = PitotConfirmation(0.2, 2.0, 3.0, 0.2, HZ)
+    hits = [c.update(level, r, armed) for level, r in zip(levels, residuals)]
+    return hits.index(True) if True in hits else None
+
+
+def test_pitot_confirmation_needs_the_burst_then_a_rising_residual():
+    n = 150
+    burst = np.where(np.arange(n) == 25, 0.3, 0.0)                  # the innovation level crosses 0.2 at 1 s
+    step = np.where(np.arange(n) >= 30, 5.0, 0.0)                   # the residual jumps +5 m/s at 1.2 s
+    k = first_confirmation(burst, step)
+    # the 5 Hz low-pass crosses 3 m/s within ~3 samples, then 5 samples held (0.2 s at 25 Hz)
+    assert k is not None and 30 + 5 <= k <= 30 + 9
+    assert first_confirmation(np.zeros(n), step) is None            # no burst: the residual alone never fires
+    assert first_confirmation(burst, -step) is None                 # a falling residual (a blocked pitot) never
+    late = np.where(np.arange(n) >= 25 + 50 + 5, 5.0, 0.0)          # the residual rises after the 2 s window
+    assert first_confirmation(burst, late) is None
+    assert first_confirmation(burst, np.where(np.arange(n) >= 30, 2.9, 0.0)) is None   # below 3 m/s
+    assert first_confirmation(burst, step, armed=False) is None
+    with pytest.raises(ValueError, match="pitot confirmation"):
+        PitotConfirmation(0.0, 2.0, 3.0, 0.2, HZ)

@@ -33,15 +33,16 @@ ALARMS = ("table2", "cusum", "gnss", "pusher_rpm")
 
 
 def fly(scenario_name: str, seed: int, policy_name: str = "oracle-airspeed", env_overrides: dict | None = None,
-        record: bool = False) -> dict:
+        record: bool = False, detector_kwargs: dict | None = None) -> dict:
     """One episode: each criterion's alarm time and delay, the EKF airspeed error, and (with `record`) the
-    detector's per-EKF-step detection signals under "trace"."""
+    detector's per-EKF-step detection signals under "trace". `detector_kwargs` override the scenario's."""
     from ftcgym.agents import make_policy
 
     scenario = get_scenario(scenario_name)
     if scenario.detector != DETECTOR:
         raise ValueError(f"scenario {scenario_name!r} is not scored on {DETECTOR!r}")
-    scenario = dataclasses.replace(scenario, detector_kwargs={**scenario.detector_kwargs, "record": record})
+    scenario = dataclasses.replace(scenario, detector_kwargs={**scenario.detector_kwargs, **(detector_kwargs or {}),
+                                                               "record": record})
     env = make_env(scenario, env_overrides)
     rows, seen = [], {}
 
@@ -83,7 +84,8 @@ def _score(samples: np.ndarray, info: dict, onset) -> dict:
     out = {"fault_kind": info["fault"]["kind"] if onset is not None else None, "fault_onset": onset,
            "flight_time": float(time[-1]), "airborne_time": float(np.sum(np.diff(time, append=time[-1]) * airborne)),
            "crashed": bool(info["crashed"]), "table2_criterion": status["table2_criterion"],
-           "ekf_started": status["start_time"]}
+           "ekf_started": status["start_time"],
+           "pusher_rpm_criterion": status.get("innovation_criteria", {}).get("pusher_rpm")}
     for name, t in alarms.items():
         out[f"alarm_time_{name}"] = t
         out[f"delay_{name}"] = None if (t is None or onset is None or t < onset) else t - onset
@@ -161,6 +163,9 @@ def criteria(cusum=CUSUM_DEFAULT, innovation_detectors=INNOVATION_DETECTORS) -> 
         for c in spec["channels"]:
             out.append((f"{sensor}[{c}] norm", f"{sensor}_{c}_innovation", *spec["norm"][:2], spec.get("sign", 0)))
             out.append((f"{sensor}[{c}] derivative", f"{sensor}_{c}_innovation_derivative", *spec["derivative"][:2], 0))
+        if "pitot_confirmation" in spec:
+            _, _, residual, hold = spec["pitot_confirmation"]
+            out.append((f"{sensor} pitot confirmation", f"{sensor}_pitot_confirmation", residual, hold, 1))
     return out
 
 

@@ -150,3 +150,41 @@ class ResidualCusum:
         if armed and not self.alarm and self.statistic >= self.threshold:
             self.alarm, self.alarm_time = True, float(time)
         return self.alarm
+
+
+class PitotConfirmation:
+    """An innovation burst confirmed by the pitot: the second criterion of the pusher-RPM detector (a departure
+    from 001 Table 3, where only the a_x innovation is tied to the pusher RPM; see `INNOVATION_DETECTORS`).
+
+    A sensor fault that makes the EKF underestimate the airspeed shows first as a burst of its innovation, then
+    as the EKF airspeed falling below a sound pitot: the pitot residual r = pitot - EKF airspeed rises. A
+    blocked pitot can only lower r (its reading falls), so a rising r blames the EKF's inputs, not the pitot.
+    Fires when the innovation `level_signal` reached `level` within the last `window` s and r, low-passed at
+    `cutoff` Hz (Table 2's 2nd-order Butterworth), has stayed >= `residual` for `hold` s. `statistic` is the
+    filtered r while the window holds, else 0 (the signal `ftcgym thresholds` scores).
+    """
+
+    def __init__(self, level: float, window: float, residual: float, hold: float, sample_hz: float,
+                 cutoff: float = TABLE_2_NORM[2]):
+        if not (level > 0 and window > 0 and 0.0 < cutoff < 0.5 * sample_hz):
+            raise ValueError(f"pitot confirmation: need level > 0, window > 0, 0 < cutoff < {0.5 * sample_hz} Hz; "
+                             f"got {level!r}, {window!r}, {cutoff!r}")
+        self.level, self.window_samples = float(level), math.ceil(window * sample_hz - 1e-9)
+        self.criterion = ThresholdCriterion(residual, hold, sample_hz, sign=1)
+        self._ba = signal.butter(2, cutoff, btype="low", fs=sample_hz)
+        self.reset()
+
+    def reset(self) -> None:
+        self.criterion.reset()
+        self._z, self._since_level = None, math.inf
+        self.residual, self.statistic = 0.0, 0.0
+
+    def update(self, level_signal: float, residual: float, armed: bool = True) -> bool:
+        self.residual, self._z = PitotResidualDetector._filter(self._ba, self._z, float(residual))
+        self._since_level = 0 if level_signal >= self.level else self._since_level + 1
+        in_window = self._since_level < self.window_samples
+        self.statistic = self.residual if in_window else 0.0
+        if not armed:
+            self.criterion.reset()
+            return False
+        return self.criterion(self.statistic)
