@@ -113,11 +113,12 @@ INNOVATION_DETECTORS = {
 #: for the weak bursts. Our EKF absorbs the zeroed RPM by lowering its airspeed 3-6 m/s within 0.5 s (001 Fig.
 #: 11: 2 m/s), so the pitot residual rises; the criterion fires when the a_x innovation (the norm row's 1 Hz
 #: low-pass) reached 0.2 m/s^2 within the last 2 s and the residual (Table 2's 5 Hz low-pass) has stayed >= 3 m/s
-#: for 0.2 s. Chosen offline on the tuning recordings above (session-5 traces of the 18 fault-free flights, 1.16
-#: h armed, and the 10 fault flights of seed 1000): fault-free, the largest residual held 0.2 s while the level
-#: gate was open is 1.51 m/s (3 m/s is twice it; the residual alone, ungated, reaches 3.7 m/s); on the fault
-#: flights the criterion fires 0.34-0.72 s after onset, including the two weak bursts (0.50 and 0.72 s) that the
-#: norm row sees only after 4.1-4.3 s. Held-out figures: README, "Air data".
+#: for 0.2 s. Chosen offline on recordings of the tuning flights above (the 18 fault-free flights, 1.16 h armed,
+#: and the 10 fault flights of seed 1000, flown with the earlier a_x criterion): fault-free, the largest residual
+#: held 0.2 s while the level gate was open is 1.51 m/s (3 m/s is twice it; the residual alone, ungated, reaches
+#: 3.7 m/s); on the fault flights the criterion fires 0.34-0.72 s after onset, including the two weak bursts
+#: (0.50 and 0.72 s) that the norm row sees only after 4.1-4.3 s. Held-out figures: README, "Fault detectors"
+#: (`ftcgym airdata-study`).
 #: "rollback" (s, default 0): on the alarm the EKF re-runs from its state that long ago without the sensor
 #: (`AirdataEkfDetector._roll_back`, a departure from 001). GNSS: 0.16 s = the criteria's 2 samples (0.08 s)
 #: plus ~2 samples of delay of the 5 Hz prefilter and innovation low-pass before a zero reading crosses them.
@@ -294,8 +295,9 @@ class AirdataEkfDetector:
     001; "forward": max(u, 0), the air velocity along the pitot), cusum ((drift m/s^2, threshold m/s, cutoff Hz)
     of `ResidualCusum`, which always runs beside Table 2), criterion (which pitot test drives `alarm`: "table2",
     "cusum" or "either"); fault tolerance (Sec. 6.2): innovation_detectors ({sensor: channels, norm,
-    derivative, and optionally sign, pitot_confirmation, rollback}, INNOVATION_DETECTORS; None: off), fault_covariance (R of a measurement once its detector
-    alarmed); record (keep `trace`, one dict of the detection signals per armed EKF step, for `ftcgym thresholds`).
+    derivative, and optionally sign, pitot_confirmation, rollback}, INNOVATION_DETECTORS; None: off),
+    fault_covariance (R of a measurement once its detector alarmed); record (keep `trace`, one dict of the
+    detection signals per armed EKF step, for `ftcgym thresholds`).
 
     Status: `alarm` / `alarm_time` / `isolated` are the first of the pitot alarm (by `criterion`) and the
     innovation alarms, isolated as "pitot", "gnss" or "pusher_rpm"; `pitot_alarm`, `alarm_time_table2`,

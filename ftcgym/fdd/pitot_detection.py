@@ -158,7 +158,8 @@ class PitotConfirmation:
 
     A sensor fault that makes the EKF underestimate the airspeed shows first as a burst of its innovation, then
     as the EKF airspeed falling below a sound pitot: the pitot residual r = pitot - EKF airspeed rises. A
-    blocked pitot can only lower r (its reading falls), so a rising r blames the EKF's inputs, not the pitot.
+    blocked pitot can only lower r (its reading falls), so a rising r blames the EKF's inputs, not the pitot
+    (a pitot reading high, a fault not modelled here, would be blamed on them too if an innovation rose with it).
     Fires when the innovation `level_signal` reached `level` within the last `window` s and r, low-passed at
     `cutoff` Hz (Table 2's 2nd-order Butterworth), has stayed >= `residual` for `hold` s. `statistic` is the
     filtered r while the window holds, else 0 (the signal `ftcgym thresholds` scores).
