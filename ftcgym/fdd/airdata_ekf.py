@@ -400,13 +400,15 @@ class AirdataEkfDetector:
         self._history.append((time, self._filtered.copy(), self.x.copy(), self.P.copy()))
         self._ekf_cycle(self._filtered, time)
         self._armed = time - self.start_time >= self.detection_delay - 1e-9
-        if self._detect_innovation_faults(time, self._pitot_residual(time)):
+        residual = self._pitot_residual(time)
+        if self._detect_innovation_faults(time, residual):
             self._roll_back()
+            residual = self._pitot_residual(time)            # of the re-run state
         # Sec. 6.2: a sensor fault must not be blamed on the pitot; and once one is found, 001 Sec. 7.3.2 notes
         # the residual no longer fits the fault-free thresholds: the pitot tests stop (disarmed) from then on
         pitot_armed = self._armed and not any(t is not None for t in self.innovation_alarms.values())
-        if self._pitot is not None:
-            self._residual = self._pitot_residual(time)      # after a roll-back: of the re-run state
+        if residual is not None:
+            self._residual = residual
             self.pitot_detector.update(self._residual, time, pitot_armed)
             self.cusum.update(self._residual, time, pitot_armed)
         if self.record and self._armed:
