@@ -345,7 +345,6 @@ class AirdataEkfDetector:
         self.rollback = {sensor: float(spec.get("rollback", 0.0)) for sensor, spec in (innovation_detectors or {}).items()}
         self.confirmations = {sensor: PitotConfirmation(*spec["pitot_confirmation"], ekf_hz)
                               for sensor, spec in (innovation_detectors or {}).items() if "pitot_confirmation" in spec}
-        self._signs = {sensor: spec.get("sign", 0) for sensor, spec in (innovation_detectors or {}).items()}
         self._history_length = max([round(t * ekf_hz) for t in self.rollback.values()], default=0) + 1
         self.reset()
 
@@ -480,8 +479,7 @@ class AirdataEkfDetector:
             hits = [d.criterion for c, d in channels.items() if d.update(self.innovation[c], time, self._armed)]
             confirmation = self.confirmations.get(sensor)
             if confirmation is not None and pitot_residual is not None:
-                sign = self._signs[sensor]
-                level = max((sign * d.residual if sign else abs(d.residual)) for d in channels.values())
+                level = max(d.norm.level(d.residual) for d in channels.values())   # one-sided as the norm row
                 if confirmation.update(level, pitot_residual, self._armed):
                     hits.append("pitot_confirmation")
             if hits and self.innovation_alarms[sensor] is None:

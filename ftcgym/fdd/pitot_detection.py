@@ -50,9 +50,12 @@ class ThresholdCriterion:
     def reset(self) -> None:
         self.count = 0
 
+    def level(self, value: float) -> float:
+        """What the threshold is compared with: |value|, or sign * value when one-sided."""
+        return abs(value) if self.sign == 0 else self.sign * value
+
     def __call__(self, value: float) -> bool:
-        level = abs(value) if self.sign == 0 else self.sign * value
-        self.count = self.count + 1 if level >= self.threshold else 0
+        self.count = self.count + 1 if self.level(value) >= self.threshold else 0
         return self.count >= self.samples
 
 
