@@ -55,12 +55,16 @@ def test_abrupt_step_alarms_by_derivative_fast():
     assert d.alarm_time - 1.0 == pytest.approx(2 / HZ)           # 3rd consecutive sample above (eq. 40: f T = 3)
 
 
-def test_ramp_alarms_by_norm():
-    """001 Sec. 7.2.2: -2.5 m/s^2 ramp: |r| passes 5.5 m/s at 2.2 s, alarm ~0.3 s later (001: 2.5 s)."""
+@pytest.mark.parametrize("phase", [0.0, 0.01, 0.02, 0.03])
+def test_ramp_alarms_by_norm_at_001s_figure(phase):
+    """001 Sec. 7.2.2: a noise-free -2.5 m/s^2 ramp passes 5.5 m/s at 2.2 s; with the 5 Hz filter's ramp lag (~0.04 s),
+    the wait for the next sample and the 7 samples held, Table 2 alarms at 2.48-2.51 s, whatever the onset's phase
+    between samples: 001's "after 2.5 s" is this test's floor, so noise on a real residual puts flights either side."""
     t = np.arange(200) / HZ
-    d = run(np.where(t < 1.0, 0.0, -2.5 * (t - 1.0)))
-    assert d.alarm and d.criterion in ("norm", "derivative")
-    assert 2.2 < d.alarm_time - 1.0 < 2.8
+    onset = 1.0 + phase
+    d = run(np.where(t < onset, 0.0, -2.5 * (t - onset)))
+    assert d.alarm and d.criterion == "norm"
+    assert 2.47 < d.alarm_time - onset < 2.52
 
 
 def test_noise_below_thresholds_does_not_alarm():
