@@ -59,7 +59,7 @@ def test_abrupt_step_alarms_by_derivative_fast():
 def test_ramp_alarms_by_norm_at_001s_figure(phase):
     """001 Sec. 7.2.2: a noise-free -2.5 m/s^2 ramp passes 5.5 m/s at 2.2 s; with the 5 Hz filter's ramp lag (~0.04 s),
     the wait for the next sample and the 7 samples held, Table 2 alarms at 2.48-2.51 s, whatever the onset's phase
-    between samples: 001's "after 2.5 s" is this test's floor, so noise on a real residual puts flights either side."""
+    between samples: 001's "after 2.5 s" is Table 2's floor, so noise on a real residual puts flights either side."""
     t = np.arange(200) / HZ
     onset = 1.0 + phase
     d = run(np.where(t < onset, 0.0, -2.5 * (t - onset)))
