@@ -63,7 +63,7 @@ from collections import deque
 import numpy as np
 from scipy import signal
 
-from .base import model_with_error
+from .base import Biquad, model_with_error
 from .pitot_detection import (CUSUM_DEFAULT, TABLE_2_DERIVATIVE, TABLE_2_NORM, PitotConfirmation,
                               PitotResidualDetector, ResidualCusum)
 
@@ -147,22 +147,6 @@ def butterworth_prefilter(sample_hz: float, cutoff_hz: float = PREFILTER_CUTOFF_
     if not (0.0 < cutoff_hz < 0.5 * sample_hz):
         raise ValueError(f"prefilter: cutoff {cutoff_hz!r} Hz must lie in (0, {0.5 * sample_hz}) Hz")
     return signal.butter(2, cutoff_hz, btype="low", fs=sample_hz)
-
-
-class _Lowpass:
-    """The same biquad on several channels (direct form II transposed), started at steady state."""
-
-    def __init__(self, b, a):
-        self.b, self.a, self.z = np.asarray(b) / a[0], np.asarray(a) / a[0], None
-
-    def __call__(self, x: np.ndarray) -> np.ndarray:
-        b, a = self.b, self.a
-        if self.z is None:
-            self.z = np.outer(signal.lfilter_zi(b, a), x)
-        y = b[0] * x + self.z[0]
-        self.z[0] = b[1] * x - a[1] * y + self.z[1]
-        self.z[1] = b[2] * x - a[2] * y
-        return y
 
 
 def rotation_from_quaternion(q) -> np.ndarray:
@@ -356,7 +340,7 @@ class AirdataEkfDetector:
         self.innovation = np.zeros(6)
         self.started, self.start_time, self._next_time = False, None, None
         self._ground_z, self._last_q = None, None
-        self._filter = _Lowpass(*self._ba)
+        self._filter = Biquad(*self._ba)
         self._filtered = None
         self._pitot, self._armed, self._residual = None, False, 0.0
         self.pitot_detector.reset()

@@ -9,6 +9,7 @@ from __future__ import annotations
 from typing import Protocol, runtime_checkable
 
 import numpy as np
+from scipy import signal
 
 
 @runtime_checkable
@@ -33,6 +34,28 @@ class Detector(Protocol):
     def outputs(self) -> dict: ...
 
     def status(self) -> dict: ...
+
+
+class Biquad:
+    """A second-order IIR filter (b, a) run one sample at a time, direct form II transposed, on a scalar or on
+    several channels at once; it starts at steady state on its first sample (no start-up transient)."""
+
+    def __init__(self, b, a):
+        a = np.asarray(a, dtype=float)
+        self.b, self.a = np.asarray(b, dtype=float) / a[0], a / a[0]
+        self.z = None
+
+    def reset(self) -> None:
+        self.z = None
+
+    def __call__(self, x):
+        b, a = self.b, self.a
+        if self.z is None:
+            self.z = np.multiply.outer(signal.lfilter_zi(b, a), x)
+        y = b[0] * x + self.z[0]
+        self.z[0] = b[1] * x - a[1] * y + self.z[1]
+        self.z[1] = b[2] * x - a[2] * y
+        return y
 
 
 class AlarmLatch:

@@ -20,7 +20,7 @@ import numpy as np
 from scipy import signal
 from scipy.special import erf
 
-from .base import AlarmLatch
+from .base import AlarmLatch, Biquad
 
 #: 000 eq. (9): signs of each rotor's contribution to p_dot, q_dot and a_z for rotors r1..r4 of Fig. 2.
 SIGNS_000 = np.array([[1.0, -1.0, -1.0, 1.0],
@@ -66,23 +66,6 @@ def kalman_step(x, P, z, H, Q, R, k_bounds=(0.0, 1.5)):
     return x, 0.5 * (P + P.T)
 
 
-class _Biquad:
-    """Direct-form-II-transposed second-order filter on several channels at once, started at steady state."""
-
-    def __init__(self, b, a):
-        self.b, self.a = b / a[0], a / a[0]
-        self.z = None
-
-    def __call__(self, x: np.ndarray) -> np.ndarray:
-        b, a = self.b, self.a
-        if self.z is None:  # start as if x had always been there: no start-up transient
-            self.z = np.outer(signal.lfilter_zi(b, a), x)
-        y = b[0] * x + self.z[0]
-        self.z[0] = b[1] * x - a[1] * y + self.z[1]
-        self.z[1] = b[2] * x - a[2] * y
-        return y
-
-
 class LoeKalmanDetector:
     """000's LOE detector. Readings: `gyro` (rad/s, FRD), `accel` (specific force, m/s^2), `rotor_speed` (rad/s).
 
@@ -124,7 +107,7 @@ class LoeKalmanDetector:
         self.x = np.ones(4)
         self.P = self.initial_variance * np.eye(4)
         self.p_fail = np.zeros(4)
-        self._filter = _Biquad(*self._coefficients)
+        self._filter = Biquad(*self._coefficients)
         self._previous_rates = None
         self.armed = False
         self._alarm.reset()

@@ -17,8 +17,9 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 from scipy import signal
+
+from .base import Biquad
 
 #: 001 Table 2, pitot rows: threshold, time threshold (s), cutoff (Hz).
 TABLE_2_NORM = (5.5, 0.25, 5.0)
@@ -72,8 +73,8 @@ class PitotResidualDetector:
             if not (0.0 < cutoff < 0.5 * sample_hz):
                 raise ValueError(f"pitot detection: cutoff {cutoff!r} Hz must lie in (0, {0.5 * sample_hz}) Hz")
         self.sample_hz = float(sample_hz)
-        self._norm_ba = signal.butter(2, norm[2], btype="low", fs=sample_hz)
-        self._deriv_ba = signal.butter(2, derivative[2], btype="low", fs=sample_hz)
+        self._norm_filter = Biquad(*signal.butter(2, norm[2], btype="low", fs=sample_hz))
+        self._deriv_filter = Biquad(*signal.butter(2, derivative[2], btype="low", fs=sample_hz))
         self.norm = ThresholdCriterion(norm[0], norm[1], sample_hz, sign)   # `sign`: a one-sided norm criterion
         self.deriv = ThresholdCriterion(derivative[0], derivative[1], sample_hz)
         self.reset()
@@ -81,23 +82,15 @@ class PitotResidualDetector:
     def reset(self) -> None:
         self.norm.reset()
         self.deriv.reset()
-        self._zn = self._zd = None
+        self._norm_filter.reset()
+        self._deriv_filter.reset()
         self._last = None
         self.residual, self.derivative = 0.0, 0.0
         self.alarm, self.alarm_time, self.criterion = False, None, None
 
-    @staticmethod
-    def _filter(ba, z, x):
-        b, a = ba
-        if z is None:                      # start at steady state on the first sample
-            z = signal.lfilter_zi(b, a) * x
-        y = b[0] * x + z[0]
-        return y, np.array([b[1] * x - a[1] * y + z[1], b[2] * x - a[2] * y])
-
     def update(self, residual: float, time: float, armed: bool = True) -> bool:
         r = float(residual)
-        self.residual, self._zn = self._filter(self._norm_ba, self._zn, r)
-        rd, self._zd = self._filter(self._deriv_ba, self._zd, r)
+        self.residual, rd = self._norm_filter(r), self._deriv_filter(r)
         self.derivative = 0.0 if self._last is None else (rd - self._last) * self.sample_hz
         self._last = rd
         if not armed:
@@ -135,16 +128,17 @@ class ResidualCusum:
             raise ValueError(f"cusum: need drift >= 0, threshold > 0, 0 < cutoff < {0.5 * sample_hz} Hz; got "
                              f"{drift!r}, {threshold!r}, {cutoff!r}")
         self.sample_hz, self.drift, self.threshold = float(sample_hz), float(drift), float(threshold)
-        self._ba = signal.butter(2, cutoff, btype="low", fs=sample_hz)
+        self._filter = Biquad(*signal.butter(2, cutoff, btype="low", fs=sample_hz))
         self.reset()
 
     def reset(self) -> None:
-        self._z, self._last = None, None
+        self._filter.reset()
+        self._last = None
         self.statistic = 0.0
         self.alarm, self.alarm_time = False, None
 
     def update(self, residual: float, time: float, armed: bool = True) -> bool:
-        r, self._z = PitotResidualDetector._filter(self._ba, self._z, float(residual))
+        r = self._filter(float(residual))
         if armed and self._last is not None:
             self.statistic = max(0.0, self.statistic + (self._last - r) - self.drift / self.sample_hz)
         else:
@@ -175,16 +169,17 @@ class PitotConfirmation:
                              f"got {level!r}, {window!r}, {cutoff!r}")
         self.level, self.window_samples = float(level), math.ceil(window * sample_hz - 1e-9)
         self.criterion = ThresholdCriterion(residual, hold, sample_hz, sign=1)
-        self._ba = signal.butter(2, cutoff, btype="low", fs=sample_hz)
+        self._filter = Biquad(*signal.butter(2, cutoff, btype="low", fs=sample_hz))
         self.reset()
 
     def reset(self) -> None:
         self.criterion.reset()
-        self._z, self._since_level = None, math.inf
+        self._filter.reset()
+        self._since_level = math.inf
         self.residual, self.statistic = 0.0, 0.0
 
     def update(self, level_signal: float, residual: float, armed: bool = True) -> bool:
-        self.residual, self._z = PitotResidualDetector._filter(self._ba, self._z, float(residual))
+        self.residual = self._filter(float(residual))
         self._since_level = 0 if level_signal >= self.level else self._since_level + 1
         in_window = self._since_level < self.window_samples
         self.statistic = self.residual if in_window else 0.0
