@@ -88,7 +88,7 @@ def test_not_started_on_the_ground():
     det = AirdataEkfDetector(VSQP, 100.0)
     reading = {"accel": np.array([0, 0, -9.81]), "gyro": np.zeros(3), "attitude": np.array([0, 0, 0, 1.0]),
                "gnss_velocity": np.zeros(3), "position": np.array([0, 0, -0.125]), "skew": np.zeros(1),
-               "hover_rotor_speed": np.zeros(4), "pusher_speed": np.zeros(1)}
+               "hover_rotor_speed": np.zeros(4), "pusher_speed": np.zeros(1), "pusher_current": np.zeros(1)}
     for k in range(200):
         det.update(reading, 0.01 * k)
     assert not det.started and det.status()["alarm"] is False and np.all(det.x == 0)
@@ -99,7 +99,8 @@ def hover_readings(det):
     omega = math.sqrt(9.81 * det.model.mass / (4.0 * det.model.k_f))
     return {"accel": np.array([0, 0, -9.81]), "gyro": np.zeros(3), "attitude": np.array([0, 0, 0, 1.0]),
             "gnss_velocity": np.zeros(3), "position": np.array([0, 0, -5.0]), "skew": np.zeros(1),
-            "hover_rotor_speed": np.full(4, omega), "pusher_speed": np.zeros(1), "pitot_airspeed": np.zeros(1)}
+            "hover_rotor_speed": np.full(4, omega), "pusher_speed": np.zeros(1), "pusher_current": np.zeros(1),
+            "pitot_airspeed": np.zeros(1)}
 
 
 def hover_with_gnss_jump(jump_time=25.0, seconds=27.0, **kwargs):
@@ -109,7 +110,7 @@ def hover_with_gnss_jump(jump_time=25.0, seconds=27.0, **kwargs):
     base = hover_readings(det)
     for k in range(int(seconds * 100)):
         t = 0.01 * k
-        height = 0.0 if k == 0 else 5.0                                 # first reading on the ground: start at once
+        height = 0.0 if t < 0.2 else 5.0                                # on the ground for the gate's first 0.2 s
         det.update({**base, "gnss_velocity": np.array([18.0 if t >= jump_time else 0.0, 0, 0]),
                     "position": np.array([0.0, 0.0, -height])}, t)
     return det
@@ -135,6 +136,33 @@ def test_innovation_detectors_wait_for_arming_and_can_be_off():
     # without them, 001 Sec. 6.2's hazard: the GNSS fault drags the EKF airspeed and is blamed on the pitot
     det = hover_with_gnss_jump(innovation_detectors=None)
     assert det.status()["innovation_alarms"] == {} and det.status()["isolated"] == "pitot"
+
+
+def hover_with_ax_rise(pusher_current: float):
+    """Hover as above; from 25 s the accelerometer reads +1 m/s^2 forward that the model does not explain (the a_x
+    innovation rises) while the pusher, read at 0 rad/s, draws `pusher_current`."""
+    det = AirdataEkfDetector(VSQP, 100.0)
+    base = hover_readings(det)
+    for k in range(3000):
+        t = 0.01 * k
+        det.update({**base, "accel": np.array([1.0 if t >= 25.0 else 0.0, 0.0, -9.81]),
+                    "position": np.array([0.0, 0.0, 0.0 if t < 0.2 else -5.0]),
+                    "pusher_current": np.array([pusher_current if t >= 25.0 else 0.0])}, t)
+    return det.status()
+
+
+def test_ax_alarm_isolates_the_rpm_only_with_the_current_against_it():
+    """The a_x norm row fires 0.47 s after the rise either way. With the pusher idle (0 A at 0 rad/s: readings
+    consistent) it stays unconfirmed and the EKF keeps the RPM; drawing 15 A at a read 0 rad/s, it isolates it."""
+    idle = hover_with_ax_rise(0.0)
+    assert idle["innovation_alarms"]["pusher_rpm"] is None and not idle["alarm"]
+    assert 25.0 < idle["innovation_unconfirmed"]["pusher_rpm"] <= 25.6
+    drawing = hover_with_ax_rise(15.0)
+    assert drawing["isolated"] == "pusher_rpm" and drawing["innovation_unconfirmed"]["pusher_rpm"] is None
+    assert drawing["innovation_alarms"]["pusher_rpm"] == idle["innovation_unconfirmed"]["pusher_rpm"]
+    with pytest.raises(ValueError, match="pusher_current"):
+        det = AirdataEkfDetector(VSQP, 100.0)
+        det.update({k: v for k, v in hover_readings(det).items() if k != "pusher_current"}, 0.0)
 
 
 def test_nan_reading_names_its_key():

@@ -85,7 +85,8 @@ def _score(samples: np.ndarray, info: dict, onset) -> dict:
            "flight_time": float(time[-1]), "airborne_time": float(np.sum(np.diff(time, append=time[-1]) * airborne)),
            "crashed": bool(info["crashed"]), "table2_criterion": status["table2_criterion"],
            "ekf_started": status["start_time"],
-           "pusher_rpm_criterion": status.get("innovation_criteria", {}).get("pusher_rpm")}
+           "pusher_rpm_criterion": status.get("innovation_criteria", {}).get("pusher_rpm"),
+           "pusher_rpm_unconfirmed": status.get("innovation_unconfirmed", {}).get("pusher_rpm")}
     for name, t in alarms.items():
         out[f"alarm_time_{name}"] = t
         out[f"delay_{name}"] = None if (t is None or onset is None or t < onset) else t - onset
@@ -136,7 +137,8 @@ def _fly_job(scenario, policy_name: str, seed: int, env_overrides, record: bool 
 def summary(results: list[dict]) -> dict:
     """Median / max delays, detections and false alarms per criterion, flight hours."""
     out = {"episodes": len(results), "flight_hours": sum(r["airborne_time"] for r in results) / 3600.0,
-           "crashes": sum(r["crashed"] for r in results)}
+           "crashes": sum(r["crashed"] for r in results),
+           "pusher_rpm_unconfirmed": sum(r.get("pusher_rpm_unconfirmed") is not None for r in results)}
     for name in ALARMS:
         delays = [r[f"delay_{name}"] for r in results if r[f"delay_{name}"] is not None]
         out[name] = {"detected": len(delays), "false_alarms": sum(r[f"false_alarm_{name}"] for r in results),
@@ -166,6 +168,9 @@ def criteria(cusum=CUSUM_DEFAULT, innovation_detectors=INNOVATION_DETECTORS) -> 
         if "pitot_confirmation" in spec:
             _, _, residual, hold = spec["pitot_confirmation"]
             out.append((f"{sensor} pitot confirmation", f"{sensor}_pitot_confirmation", residual, hold, 1))
+        if "current_check" in spec:
+            _, threshold, hold = spec["current_check"]
+            out.append((f"{sensor} current check", f"{sensor}_current_excess", threshold, hold, 1))
     return out
 
 

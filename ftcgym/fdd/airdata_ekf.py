@@ -16,8 +16,9 @@ TU Delft 2023 (seed 001). Pipeline per sample:
    random walk. Q, R: Table 1 (Q per EKF step, see `ekf_step`). Wind process noise x100 for the first
    20 s (Sec. 5.4); a_z measurement variance x K_az(Lambda) (eq. 39 corrected, `az_covariance_gain`).
    Initial state 0, P0 = I except the wind states, which start at their Q (Sec. 5.3).
-3. The filter starts once airborne (Sec. 5.3): when the height above the first position reading passes
-   `takeoff_height`.
+3. The filter starts once airborne (Sec. 5.3): when the height, averaged over the last `takeoff_window` s of
+   position readings, stands `takeoff_height` above its average over the first `takeoff_window` s
+   (`TakeoffGate`).
 4. Pitot fault detection (Sec. 6.1, Table 2; `pitot_detection.PitotResidualDetector`): at each EKF step the
    residual r = pitot reading - EKF airspeed is low-passed at 5 Hz and thresholded by the norm criterion
    (5.5 m/s for 0.25 s) and the derivative criterion (25 m/s^2 for 0.12 s); on either the alarm latches with
@@ -37,7 +38,9 @@ TU Delft 2023 (seed 001). Pipeline per sample:
 6. EKF fault tolerance (Sec. 6.2, Tables 2-3): one detector (low-pass, norm and derivative criteria of
    Table 2) per measurement innovation, GNSS velocity V_N, V_E, V_D (isolates "gnss") and the accelerometer-
    model a_x (isolates "pusher_rpm": the pusher RPM enters a_x's model, eq. 13-14); on an alarm the sensor's
-   rows get R = `fault_covariance` for the rest of the flight, so they no longer move the state.
+   rows get R = `fault_covariance` for the rest of the flight, so they no longer move the state. Departure:
+   an a_x alarm isolates the pusher RPM only while the RPM reading is inconsistent with the pusher current
+   (`rpm_current.RpmCurrentCheck`, independent of the EKF); until then it is published as unconfirmed.
 
 The force model (`ComponentForceModel`) is 001's (eq. 6-30: fuselage, hover rotors, wing, pusher; control
 surfaces and tail neglected as 001 Sec. 4 does), written in the same generalised forms as the simulator's
@@ -64,6 +67,7 @@ import numpy as np
 from scipy import signal
 
 from .base import Biquad, model_with_error
+from .rpm_current import RPM_CURRENT_CHECK, RpmCurrentCheck
 from .pitot_detection import (CUSUM_DEFAULT, TABLE_2_DERIVATIVE, TABLE_2_NORM, PitotConfirmation,
                               PitotResidualDetector, ResidualCusum)
 
@@ -107,7 +111,7 @@ ERROR_COEFFICIENTS = ("fuselage_drag_area", "hover_thrust_coefficient", "hover_d
 INNOVATION_DETECTORS = {
     "gnss": {"channels": (0, 1, 2), "norm": (2.5, 0.08, 5.0), "derivative": (30.0, 0.08, 5.0), "rollback": 0.16},
     "pusher_rpm": {"channels": (3,), "norm": (0.41, 0.2, 1.0), "derivative": (250.0, 0.12, 0.1), "sign": 1,
-                   "pitot_confirmation": (0.15, 2.0, 3.0, 0.2), "rollback": 6.0},
+                   "pitot_confirmation": (0.15, 2.0, 3.0, 0.2), "rollback": 6.0, "current_check": RPM_CURRENT_CHECK},
 }
 #: "pitot_confirmation" (level m/s^2, window s, residual m/s, hold s; `PitotConfirmation`): a third criterion,
 #: for the weak bursts. Our EKF absorbs the zeroed RPM by lowering its airspeed 3-6 m/s within 0.5 s (001 Fig.
@@ -121,6 +125,11 @@ INNOVATION_DETECTORS = {
 #: max 1.51 m/s); a held-out flight (`--seed 305`) whose burst peaked at 0.19 m/s^2 then took 5 s, so the gate
 #: went to 0.15, about 0.6 times the weakest tuning burst (0.24 m/s^2; they peak at 0.24-0.64), and seed 305
 #: counts as tuning data since. Held-out figures: README, "Fault detectors" (`ftcgym airdata-study`).
+#: "current_check" ((allowance, threshold A, hold s) of `rpm_current.RpmCurrentCheck`; needs the reading
+#: "pusher_current"): the sensor's criteria alarm only while the check holds, i.e. while the pusher's current
+#: exceeds what its read speed can draw. Without it the two held-out a_x false alarms of 30.7 fault-free hours
+#: (README) isolated the RPM sensor on EKF errors; a criterion that fires while the check does not hold is
+#: published as unconfirmed (`innovation_unconfirmed`) and the EKF keeps the measurement.
 #: "rollback" (s, default 0): on the alarm the EKF re-runs from its state that long ago without the sensor
 #: (`AirdataEkfDetector._roll_back`, a departure from 001). GNSS: 0.16 s = the criteria's 2 samples (0.08 s)
 #: plus ~2 samples of delay of the 5 Hz prefilter and innovation low-pass before a zero reading crosses them.
@@ -263,17 +272,45 @@ def ekf_step(x, P, dt, inputs, z, h, H, Q, R):
     return x_new, 0.5 * (P_new + P_new.T), y, S
 
 
+class TakeoffGate:
+    """001 Sec. 5.3 starts the EKF once airborne. `gate(z)` (position down, m, one reading per call) is True
+    once the height averaged over the last `window` s of readings stands `height` m above its average over
+    the first `window` s (the ground). Both are averages because the quad-plane's navigation position carries
+    0.3 m of white noise (sampled at 50 Hz): a single reading against the first one, the gate before, opened
+    before 0.3 s in 24 of 371 fault-free missions, some on the ground. Over 0.2 s (10 position samples) the
+    difference of the two averages has a noise of ~0.13 m, 1/7 of the 1 m height; the average lags ~0.1 s."""
+
+    def __init__(self, height: float, window: float, sample_hz: float):
+        if not (height > 0 and window > 0):
+            raise ValueError(f"takeoff_height {height!r} and takeoff_window {window!r}: both must be > 0")
+        self.height, self._recent = float(height), deque(maxlen=max(1, round(window * sample_hz)))
+        self.reset()
+
+    def reset(self) -> None:
+        self._recent.clear()
+        self.ground = None
+
+    def __call__(self, z: float) -> bool:
+        self._recent.append(z)
+        if len(self._recent) < self._recent.maxlen:
+            return False
+        level = sum(self._recent) / len(self._recent)
+        if self.ground is None:
+            self.ground = level
+        return self.ground - level >= self.height
+
+
 class AirdataEkfDetector:
     """001's synthetic air data EKF; outputs airspeed, wind and the filtered pitot residual, and raises the
     pitot fault alarm of Sec. 6.1 (`status()["alarm"]`, `isolated` = "pitot").
 
     Readings (QuadPlane-v0 keys): accel (specific force, FRD), gyro, attitude (x y z w, FRD -> NED),
     gnss_velocity (NED), position (NED, for the take-off gate), skew (rad), hover_rotor_speed (4, rad/s),
-    pusher_speed (rad/s).
+    pusher_speed (rad/s), pusher_current (A; for the pusher RPM's current check).
 
     Parameters: params (the vehicle parameter set, read by attribute), sample_hz (rate of `update` calls),
     ekf_hz (25), prefilter_hz (5), Q_accel, Q_gyro, Q_wind, R (Table 1), wind_boost (x100) for
-    wind_boost_seconds (20 s) after the start, takeoff_height (m above the first position reading),
+    wind_boost_seconds (20 s) after the start, takeoff_height and takeoff_window (`TakeoffGate`),
     coefficient_error, error_seed (see ComponentForceModel), velocity_key (GNSS velocity reading);
     pitot detection: pitot_key (reading; absent from the readings: no detection), norm_criterion and
     derivative_criterion ((threshold, time s, cutoff Hz), Table 2), detection_delay (s after the start before
@@ -281,14 +318,17 @@ class AirdataEkfDetector:
     001; "forward": max(u, 0), the air velocity along the pitot), cusum ((drift m/s^2, threshold m/s, cutoff Hz)
     of `ResidualCusum`, which always runs beside Table 2), criterion (which pitot test drives `alarm`: "table2",
     "cusum" or "either"); fault tolerance (Sec. 6.2): innovation_detectors ({sensor: channels, norm,
-    derivative, and optionally sign, pitot_confirmation, rollback}, INNOVATION_DETECTORS; None: off),
+    derivative, and optionally sign, pitot_confirmation, rollback, current_check}, INNOVATION_DETECTORS;
+    None: off),
     fault_covariance (R of a measurement once its detector alarmed); record (keep `trace`, one dict of the
     detection signals per armed EKF step, for `ftcgym thresholds`).
 
     Status: `alarm` / `alarm_time` / `isolated` are the first of the pitot alarm (by `criterion`) and the
     innovation alarms, isolated as "pitot", "gnss" or "pusher_rpm"; `pitot_alarm`, `alarm_time_table2`,
     `alarm_time_cusum`, `table2_criterion` ("norm" / "derivative"), `innovation_alarms` ({sensor: time}) and
-    `innovation_criteria` ({sensor: "norm" / "derivative" / "pitot_confirmation"}) say which fired and when.
+    `innovation_criteria` ({sensor: "norm" / "derivative" / "pitot_confirmation"}) say which fired and when;
+    `innovation_unconfirmed` ({sensor: time}) when a criterion first fired while the sensor's current check
+    did not hold.
     """
 
     name = "airdata_ekf"
@@ -298,7 +338,7 @@ class AirdataEkfDetector:
     def __init__(self, params, sample_hz: float, ekf_hz: float = EKF_HZ, prefilter_hz: float = PREFILTER_CUTOFF_HZ,
                  Q_accel=TABLE_1_Q["accel"], Q_gyro=TABLE_1_Q["gyro"], Q_wind=TABLE_1_Q["wind"], R=TABLE_1_R,
                  wind_boost: float = WIND_BOOST, wind_boost_seconds: float = WIND_BOOST_SECONDS,
-                 takeoff_height: float = 1.0, coefficient_error: float = 0.10, error_seed: int | None = None,
+                 takeoff_height: float = 1.0, takeoff_window: float = 0.2, coefficient_error: float = 0.10, error_seed: int | None = None,
                  velocity_key: str = "gnss_velocity", pitot_key: str = "pitot_airspeed",
                  norm_criterion=TABLE_2_NORM, derivative_criterion=TABLE_2_DERIVATIVE,
                  detection_delay: float | None = None, pitot_reference: str = "forward",
@@ -311,7 +351,7 @@ class AirdataEkfDetector:
         self.Q = np.diag(np.concatenate([Q_accel, Q_gyro, Q_wind]).astype(float))
         self.R = np.diag(np.asarray(R, dtype=float))
         self.wind_boost, self.wind_boost_seconds = float(wind_boost), float(wind_boost_seconds)
-        self.takeoff_height, self.velocity_key = float(takeoff_height), velocity_key
+        self.takeoff, self.velocity_key = TakeoffGate(takeoff_height, takeoff_window, sample_hz), velocity_key
         self._ba = butterworth_prefilter(sample_hz, prefilter_hz)
         if pitot_reference not in ("airspeed", "forward"):
             raise ValueError(f"pitot_reference: {pitot_reference!r}; accepted: ['airspeed', 'forward']")
@@ -331,6 +371,9 @@ class AirdataEkfDetector:
         self.rollback = {sensor: float(spec.get("rollback", 0.0)) for sensor, spec in (innovation_detectors or {}).items()}
         self.confirmations = {sensor: PitotConfirmation(*spec["pitot_confirmation"], ekf_hz)
                               for sensor, spec in (innovation_detectors or {}).items() if "pitot_confirmation" in spec}
+        self.current_checks = {sensor: RpmCurrentCheck(params, sample_hz, *spec["current_check"],
+                                                       coefficient_error=coefficient_error, error_seed=error_seed)
+                               for sensor, spec in (innovation_detectors or {}).items() if "current_check" in spec}
         self._history_length = max([round(t * ekf_hz) for t in self.rollback.values()], default=0) + 1
         self.reset()
 
@@ -339,7 +382,8 @@ class AirdataEkfDetector:
         self.P = np.diag(np.concatenate([np.ones(3), np.diag(self.Q)[6:]]))
         self.innovation = np.zeros(6)
         self.started, self.start_time, self._next_time = False, None, None
-        self._ground_z, self._last_q = None, None
+        self._last_q = None
+        self.takeoff.reset()
         self._filter = Biquad(*self._ba)
         self._filtered = None
         self._pitot, self._armed, self._residual = None, False, 0.0
@@ -350,8 +394,11 @@ class AirdataEkfDetector:
                 detector.reset()
         for confirmation in self.confirmations.values():
             confirmation.reset()
+        for check in self.current_checks.values():
+            check.reset()
         self.innovation_alarms = {sensor: None for sensor in self.innovation_detectors}
         self.innovation_criteria = {sensor: None for sensor in self.innovation_detectors}
+        self.innovation_unconfirmed = {sensor: None for sensor in self.current_checks}
         self._newest_alarm = None
         self._history = deque(maxlen=self._history_length)
         self.trace = []
@@ -370,11 +417,14 @@ class AirdataEkfDetector:
         self._filtered = self._filter(sample)                  # Sec. 5: inputs and measurements alike
         if self.pitot_key in readings:
             self._pitot = float(np.asarray(readings[self.pitot_key]).reshape(-1)[0])
-        z_pos = float(readings["position"][2])
-        if self._ground_z is None:
-            self._ground_z = z_pos
+        for sensor, check in self.current_checks.items():
+            if "pusher_current" not in readings:
+                raise ValueError(f"airdata_ekf: reading 'pusher_current' missing; the {sensor} current check needs it "
+                                 f"(without it, drop 'current_check' from innovation_detectors[{sensor!r}])")
+            check.update(float(parts[4][0]), float(np.asarray(readings["pusher_current"]).reshape(-1)[0]))
+        airborne = self.takeoff(float(readings["position"][2]))
         if not self.started:
-            if self._ground_z - z_pos < self.takeoff_height:   # Sec. 5.3: start once airborne
+            if not airborne:                                   # Sec. 5.3: start once airborne
                 return
             self.started, self.start_time, self._next_time = True, float(time), float(time)
         if time + 1e-9 >= self._next_time:
@@ -468,6 +518,11 @@ class AirdataEkfDetector:
                 level = max(d.norm.level(d.residual) for d in channels.values())   # one-sided as the norm row
                 if confirmation.update(level, pitot_residual, self._armed):
                     hits.append("pitot_confirmation")
+            check = self.current_checks.get(sensor)
+            if hits and check is not None and not check.holding:
+                if self.innovation_unconfirmed[sensor] is None:
+                    self.innovation_unconfirmed[sensor] = float(time)
+                continue
             if hits and self.innovation_alarms[sensor] is None:
                 self.innovation_alarms[sensor] = self._newest_alarm = float(time)
                 self.innovation_criteria[sensor] = hits[0]
@@ -486,6 +541,8 @@ class AirdataEkfDetector:
                 row[f"{sensor}_{c}_innovation_derivative"] = detector.derivative
         for sensor, confirmation in self.confirmations.items():
             row[f"{sensor}_pitot_confirmation"] = confirmation.statistic
+        for sensor, check in self.current_checks.items():
+            row[f"{sensor}_current_excess"] = check.excess
         return row
 
     def pitot_alarm_time(self) -> float | None:
@@ -519,6 +576,7 @@ class AirdataEkfDetector:
                 "alarm_time_cusum": self.cusum.alarm_time, "table2_criterion": d.criterion,
                 "cusum_statistic": float(self.cusum.statistic), "innovation_alarms": dict(self.innovation_alarms),
                 "innovation_criteria": dict(self.innovation_criteria),
+                "innovation_unconfirmed": dict(self.innovation_unconfirmed),
                 "pitot_residual": float(d.residual),
                 "pitot_residual_derivative": float(d.derivative),
                 "detection_armed": self._armed, "started": self.started,
