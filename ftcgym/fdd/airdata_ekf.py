@@ -67,9 +67,9 @@ import numpy as np
 from scipy import signal
 
 from .base import Biquad, model_with_error
-from .rpm_current import RPM_CURRENT_CHECK, RpmCurrentCheck
 from .pitot_detection import (CUSUM_DEFAULT, TABLE_2_DERIVATIVE, TABLE_2_NORM, PitotConfirmation,
                               PitotResidualDetector, ResidualCusum)
+from .rpm_current import RPM_CURRENT_CHECK, RpmCurrentCheck
 
 GRAVITY = 9.81
 TWO_PI = 2.0 * math.pi
@@ -338,7 +338,8 @@ class AirdataEkfDetector:
     def __init__(self, params, sample_hz: float, ekf_hz: float = EKF_HZ, prefilter_hz: float = PREFILTER_CUTOFF_HZ,
                  Q_accel=TABLE_1_Q["accel"], Q_gyro=TABLE_1_Q["gyro"], Q_wind=TABLE_1_Q["wind"], R=TABLE_1_R,
                  wind_boost: float = WIND_BOOST, wind_boost_seconds: float = WIND_BOOST_SECONDS,
-                 takeoff_height: float = 1.0, takeoff_window: float = 0.2, coefficient_error: float = 0.10, error_seed: int | None = None,
+                 takeoff_height: float = 1.0, takeoff_window: float = 0.2,
+                 coefficient_error: float = 0.10, error_seed: int | None = None,
                  velocity_key: str = "gnss_velocity", pitot_key: str = "pitot_airspeed",
                  norm_criterion=TABLE_2_NORM, derivative_criterion=TABLE_2_DERIVATIVE,
                  detection_delay: float | None = None, pitot_reference: str = "forward",

@@ -10,17 +10,17 @@ uses it), and 003 eq. (1) ties the two:
     Q_a = rho D^5 (C_Q0 n^2 + C_Q1 n V / D + C_Q2 V^2 / D^2),  n = w / 2 pi   003 eq. (2)-(4), expanded
 
 so a motor at the read speed w draws I_e = I_0 + (c_v w + Q_a(w, V) + Theta dw/dt) / k_e. The airspeed terms
-lower Q_a (C_Q1, C_Q2 < 0), so V = 0 gives the largest current any airspeed allows (`bound`), and the check
+lower Q_a (C_Q1, C_Q2 < 0), so V = 0 gives the largest current any airspeed allows, I_max(w), and the check
 needs neither the pitot nor the EKF. A reading that fails low leaves the measured current far above it:
 
-    excess = I_e - bound - allowance * (I_0 + (c_v w + Q_a(w, 0) + Theta |dw/dt|) / k_e)
+    excess = I_e - I_max(w) - allowance * (I_0 + (c_v w + Q_a(w, 0) + Theta |dw/dt|) / k_e)
 
 is compared with `threshold` (A) for `hold` s. The allowance widens every term of the bound by that fraction:
 1 doubles it, which covers the detector's model error (`coefficient_error` on k_e, Theta, C_Q, c_v, I_0: the
 bound may read ~20% low) together with 003's faults (1.1 times nominal in our scenarios; icing at 1.5 times
-even in static thrust, friction at 2 times). 0.5 did not: icing at 1.5 times in static thrust then alarmed. Speed and current are low-passed
-at `cutoff` Hz (the EKF prefilter's 2nd-order Butterworth); dw/dt is the filtered speed's backward difference.
-A reading stuck high is not covered (the modelled RPM fault reads zero).
+even in static thrust, friction at 2 times). 0.5 did not: icing at 1.5 times in static thrust then alarmed.
+Speed and current are low-passed at `cutoff` Hz (the EKF prefilter's 2nd-order Butterworth); dw/dt is the
+filtered speed's backward difference. A reading stuck high is not covered (the modelled RPM fault reads zero).
 
 Sizes (seed 7 of `qp-rpm-sensor-fault`, exact model): cruise at 750 rad/s draws 17.6 A, the bound at V = 0 is
 25 A (50 A widened); once the reading is zeroed the widened bound is 2 I_0 = 2 A and the excess ~15 A. On five
@@ -75,7 +75,7 @@ class RpmCurrentCheck:
         return self.holding
 
     def _bound(self, w: float, w_dot: float) -> float:
-        """The largest current at speed w (003 eq. 1 at V = 0, theta_1 = 1), widened by the allowance."""
+        """I_max(w) (003 eq. 1 at V = 0, theta_1 = 1) widened by the allowance."""
         m = self.model
         _, c_v, i_0 = m.x_star
         steady = c_v * w + float(m.nominal_torque(w, 0.0))
