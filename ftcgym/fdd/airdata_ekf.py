@@ -418,11 +418,7 @@ class AirdataEkfDetector:
         self._filtered = self._filter(sample)                  # Sec. 5: inputs and measurements alike
         if self.pitot_key in readings:
             self._pitot = float(np.asarray(readings[self.pitot_key]).reshape(-1)[0])
-        for sensor, check in self.current_checks.items():
-            if "pusher_current" not in readings:
-                raise ValueError(f"airdata_ekf: reading 'pusher_current' missing; the {sensor} current check needs it "
-                                 f"(without it, drop 'current_check' from innovation_detectors[{sensor!r}])")
-            check.update(float(parts[4][0]), float(np.asarray(readings["pusher_current"]).reshape(-1)[0]))
+        self._update_current_checks(readings, float(parts[keys.index("pusher_speed")][0]))
         airborne = self.takeoff(float(readings["position"][2]))
         if not self.started:
             if not airborne:                                   # Sec. 5.3: start once airborne
@@ -431,6 +427,15 @@ class AirdataEkfDetector:
         if time + 1e-9 >= self._next_time:
             self._next_time += self.dt
             self._ekf(time)
+
+    def _update_current_checks(self, readings: dict, pusher_speed: float) -> None:
+        """Every sample, so their filters run before the EKF starts; they need the raw pusher speed and current
+        (each check low-passes them itself, so it also runs alone on recorded readings)."""
+        for sensor, check in self.current_checks.items():
+            if "pusher_current" not in readings:
+                raise ValueError(f"airdata_ekf: reading 'pusher_current' missing; the {sensor} current check needs it "
+                                 f"(without it, drop 'current_check' from innovation_detectors[{sensor!r}])")
+            check.update(pusher_speed, float(np.asarray(readings["pusher_current"]).reshape(-1)[0]))
 
     def _ekf(self, time: float) -> None:
         self._history.append((time, self._filtered.copy(), self.x.copy(), self.P.copy()))
