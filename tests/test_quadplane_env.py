@@ -132,23 +132,36 @@ def test_oracle_mission_completes_both_transitions_and_tracks_the_cruise_airspee
     assert scores["airspeed_error_rmse"] < 0.1                  # the oracle feeds the truth
 
 
-def test_the_rotors_hand_over_to_the_wing_without_a_dive_at_the_end_of_the_transition():
-    """Upwind in a 7 m/s wind the transition ends with the wing at alpha ~ -12 deg; the hover rotors must keep
-    carrying what it does not until the nose is up (AutopilotGains.transition_blend_time). Cut in one step they
-    fell from ~450 to ~50 rad/s in 0.2 s and this flight sank at 1.5 m/s, 0.6 m in the first 2 s of cruise."""
+def _cruise_entry_sag(seed: int, blend_time: float | None = None) -> tuple[float, float]:
+    """Largest altitude drop (peak to trough, m) and sink rate (m/s) in the first 2 s of cruise, upwind in a 7 m/s
+    wind, where the transition ends with the nose down and the wing short of the weight (truth)."""
     env = gym.make("ftcgym/QuadPlaneAutopilot-v0", wind={"mean": [5.0, 5.0, 0.0], "turbulence": "light"},
                    max_episode_seconds=32.0)
-    samples = []                                   # (time, in cruise, altitude, sink rate), truth
-    roll_out(env, make_policy("oracle-airspeed", env), seed=1, on_step=lambda obs, info: samples.append(
+    if blend_time is not None:
+        env.unwrapped.autopilot.gains.transition_blend_time = blend_time
+    samples = []                                   # (time, in cruise, altitude, sink rate)
+    roll_out(env, make_policy("oracle-airspeed", env), seed=seed, on_step=lambda obs, info: samples.append(
         (info["time"], info["mission"]["phase"] == "cruise", -info["truth"]["position"][2],
          info["truth"]["velocity"][2])))
     time, cruise, altitude, sink = np.array(samples, dtype=float).T
     entry = time[np.argmax(cruise > 0)]
     assert cruise.any() and 20.0 < entry < 30.0
     window = (time >= entry) & (time <= entry + 2.0)
-    drop = np.maximum.accumulate(altitude[window]) - altitude[window]
-    assert drop.max() < 0.3                        # m, peak to trough (one step: 0.60)
-    assert sink[window].max() < 1.0                # m/s (one step: 1.53)
+    return float((np.maximum.accumulate(altitude[window]) - altitude[window]).max()), float(sink[window].max())
+
+
+def test_the_rotors_hand_over_to_the_wing_without_a_dive_at_the_end_of_the_transition():
+    """The hover rotors must keep carrying what the wing does not until the nose is up
+    (AutopilotGains.transition_blend_time). On seeds 1-3 the hand-over gives drops of 0.25-0.43 m and sinks of
+    0.28-0.75 m/s (means 0.36 m, 0.54 m/s); cut in one step (blend time 0), 0.46-0.67 m and 0.83-1.11 m/s
+    (means 0.57 m, 0.95 m/s). Single flights overlap, so the means over the three are compared."""
+    drops, sinks = zip(*(_cruise_entry_sag(seed) for seed in (1, 2, 3)))
+    assert np.mean(drops) < 0.45 and np.mean(sinks) < 0.7
+
+
+def test_the_cruise_entry_sag_check_fails_without_the_hand_over():
+    drops, sinks = zip(*(_cruise_entry_sag(seed, blend_time=0.0) for seed in (1, 2, 3)))
+    assert np.mean(drops) > 0.45 and np.mean(sinks) > 0.7
 
 
 def test_a_zero_pitot_in_cruise_degrades_pitot_only_against_the_oracle():

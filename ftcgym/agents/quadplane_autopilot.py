@@ -63,6 +63,8 @@ class AutopilotGains:
     max_bank_deg: float = 30.0
     cross_track: float = 0.01                # rad of course correction per m off the circle
     rotor_assist_floor: float = 0.1          # share of the weight below which the rotors stay off in cruise
+    cruise_alpha_margin_deg: float = 5.0     # alpha above trim the pitch loop may use before the rotors help
+    cruise_alpha_max_deg: float = 9.0        # below the wing's C_Lmax (10.7 deg, vsqp.wing_alpha_stall)
     cross_track_limit_deg: float = 30.0
     course: float = 0.35                     # 1/s, course-rate demand per rad of course error
     # inner loop
@@ -127,6 +129,7 @@ class QuadPlaneAutopilot:
         self._heading = self._mission_heading
         self._track = (np.zeros(2), self._mission_heading)
         self._course_angle = None
+        self._course_rate = 0.0
         self._swept = 0.0
         self.airspeed_used = 0.0
         self.airspeed_offset = 0.0               # m/s added to the cruise airspeed target (an excitation request)
@@ -257,7 +260,8 @@ class QuadPlaneAutopilot:
         course_ref = math.atan2(tangent[1], tangent[0]) + correction
         speed = max(float(np.hypot(*nav.velocity[:2])), 1.0)
         course = math.atan2(nav.velocity[1], nav.velocity[0])
-        lateral = speed * (speed / task.circuit_radius + g.course * _wrap(course_ref - course))
+        self._course_rate = speed / task.circuit_radius + g.course * _wrap(course_ref - course)
+        lateral = speed * self._course_rate
         accel = np.zeros(3)
         accel[:2] = lateral * np.array([-math.sin(course), math.cos(course)])   # + is to the right of the course
         climb_cmd = float(np.clip(g.altitude * (task.altitude + nav.position[2]), -2.0, 2.0))   # m/s, up
@@ -267,7 +271,7 @@ class QuadPlaneAutopilot:
         accel[2] = -g.climb_accel * climb_error
         self.target = np.array([*(self._centre + radial * task.circuit_radius), -task.altitude])
         pitch = self._trim_pitch(airspeed) + g.climb_rate_gain * climb_error + self._altitude_integral
-        return accel, course, pitch
+        return accel, nav.heading, pitch
 
     # ------------------------------------------------------------------ outer loop
     def _outer_loop(self, nav, accel, yaw, pitch, airspeed):
@@ -286,30 +290,39 @@ class QuadPlaneAutopilot:
             R_des = _euler_matrix(bank, pitch, yaw)
         thrust = float(-force @ R_des[:, 2])                              # along -z_des, rotors + wing
         needed = thrust - self._wing_lift(nav, airspeed, pitch is not None)
-        if self.phase == "cruise" and needed < self.gains.rotor_assist_floor * m * GRAVITY:
-            needed = 0.0                       # the wing flies; the rotors stay off rather than flicker
         share = self._cruise_share()
         if share < 1.0:                        # handing over from the transition: see transition_blend_time
             transition = max(thrust - self._wing_lift(nav, airspeed, False), 0.0)
-            needed = share * needed + (1.0 - share) * transition
+            needed = share * max(needed, 0.0) + (1.0 - share) * transition
+        elif self.phase == "cruise" and needed < self.gains.rotor_assist_floor * m * GRAVITY:
+            needed = 0.0                       # the wing flies; the rotors stay off rather than flicker
         return R_des, max(needed, 0.0)
 
-    def _cruise_share(self) -> float:
-        """How far the rotors' collective has moved from the transition's rule to the cruise rule: 0 on
-        entering cruise, 1 after `transition_blend_time` (and in every other phase, which has its own rule)."""
+    def _cruise_share(self, after: float = 0.0) -> float:
+        """How far the rotors' collective has moved from the transition's rule to the cruise rule: 0 until
+        `after` s into cruise, 1 `transition_blend_time` later (and in every other phase, which has its own rule)."""
         blend = self.gains.transition_blend_time
         if self.phase != "cruise" or blend <= 0.0:
             return 1.0
-        return min((self._time - self._phase_start) / blend, 1.0)
+        return float(np.clip((self._time - self._phase_start - after) / blend, 0.0, 1.0))
 
-    def _wing_lift(self, nav, airspeed, at_trim: bool = False) -> float:
+    def _wing_lift(self, nav, airspeed, in_cruise: bool = False) -> float:
         """Lift along body -z from the model at the given airspeed and the measured skew, at alpha = pitch minus
-        flight-path angle (001 eq. 8.6 takes the pitch, i.e. level flight) or, in forward flight, at the trim
-        alpha: there the pitch loop flies the altitude with the wing, and the rotors make up only what the
-        wing cannot carry at this airspeed (compensating the pitch loop's own lift changes would fight it)."""
+        flight-path angle (001 eq. 8.6 takes the pitch, i.e. level flight) or, in cruise, at the most the pitch
+        loop may ask of the wing (trim alpha + `cruise_alpha_margin_deg`, at most `cruise_alpha_max_deg`):
+        there the pitch loop flies the altitude with the wing, and the rotors make up only what the wing cannot
+        carry at this airspeed. Counting only the lift at the trim alpha switched the rotors on in every gust's
+        sink and steep turn (~80 times per mission in 8 m/s wind), and their drag in the cross-flow, which
+        this autopilot does not model, pitched the airframe at up to 2.7 rad/s."""
         if airspeed < 1.0 or self.phase in QUAD_PHASES:    # hovering, the flow's direction is unknown
             return 0.0
-        alpha = self._trim_pitch(airspeed) if at_trim else nav.alpha
+        alpha = nav.alpha(airspeed)
+        if in_cruise:
+            g = self.gains
+            # the margin grows only after the hand-over from the transition (`transition_blend_time`), over as
+            # long again: the nose is still coming up then, and crediting the wing during it sank the airframe
+            margin = self._cruise_share(after=g.transition_blend_time) * math.radians(g.cruise_alpha_margin_deg)
+            alpha = min(self._trim_pitch(airspeed) + margin, math.radians(g.cruise_alpha_max_deg))
         air = airspeed * np.array([math.cos(alpha), 0.0, math.sin(alpha)])
         force, _ = aero_wrench(self.params, air, np.zeros(3), nav.skew, np.zeros(3), NO_ROTORS, ONES, 0.0, 0.0)
         return float(-force[2])
@@ -338,7 +351,10 @@ class QuadPlaneAutopilot:
     def _inner_loop(self, nav, R_des, collective, airspeed):
         R, rates = nav.R, nav.gyro
         e_R = 0.5 * _vee(R_des.T @ R - R.T @ R_des)
-        rate_cmd = np.clip(-self._katt * e_R, -self._max_rate, self._max_rate)
+        rate_cmd = -self._katt * e_R
+        if self.phase == "cruise":
+            rate_cmd += self._turn_rates(nav)
+        rate_cmd = np.clip(rate_cmd, -self._max_rate, self._max_rate)
         rate_error = rate_cmd - rates
         # integral: the aerodynamic moments the model does not cover (all of them while hovering) are large
         # against this airframe's roll inertia (0.6 N m from a 7 m/s side flow = 21 rad/s^2)
@@ -352,6 +368,14 @@ class QuadPlaneAutopilot:
         B = self._effectiveness(nav, airspeed)
         demand = np.append(moment, collective)
         return self._allocate(B, demand, collective)
+
+    def _turn_rates(self, nav) -> np.ndarray:
+        """Body rates of the course rate the circle asks for, flown as a heading rate (Euler psi-dot to body
+        rates): in forward flight the heading follows the turn, the fin keeps the nose in the air flow."""
+        roll = math.atan2(nav.R[2, 1], nav.R[2, 2])
+        cos_pitch = math.cos(nav.pitch)
+        return self._course_rate * np.array([-math.sin(nav.pitch), math.sin(roll) * cos_pitch,
+                                             math.cos(roll) * cos_pitch])
 
     def _allocate(self, B, demand, collective):
         """Regularised weighted least squares over rotors and surfaces (001 Sec. 8.1: WLS allocation), then
@@ -453,13 +477,19 @@ class _Navigation:
         self.pitch = float(-math.asin(np.clip(self.R[2, 0], -1.0, 1.0)))
         self.pusher_current = float(obs["pusher_current"][0])
         self.heading = math.atan2(self.R[1, 0], self.R[0, 0])
-        # angle of attack ~ pitch - flight-path angle (no vane: 001 Sec. 3, the VSQP has none)
-        climb = -self.velocity[2]
-        self.alpha = self.pitch - math.atan2(climb, max(float(np.hypot(*self.velocity[:2])), 3.0))
+        self.climb = -float(self.velocity[2])
+
+    def alpha(self, airspeed: float) -> float:
+        """Angle of attack ~ pitch - the flight-path angle through the air, asin(climb / airspeed) with the
+        wind taken as horizontal (no vane: 001 Sec. 3, the VSQP has none). The path angle over the ground
+        (climb / ground speed) overstated it upwind in strong wind (9 m/s over the ground at 18 m/s airspeed:
+        twice the angle), and the model moment at that alpha fed every sink back into a pitch-up."""
+        return self.pitch - math.asin(float(np.clip(self.climb / max(airspeed, 3.0), -1.0, 1.0)))
 
     def air_velocity(self, airspeed: float) -> np.ndarray:
         """Body air velocity for the given airspeed at alpha, sideslip taken as zero."""
-        return airspeed * np.array([math.cos(self.alpha), 0.0, math.sin(self.alpha)])
+        alpha = self.alpha(airspeed)
+        return airspeed * np.array([math.cos(alpha), 0.0, math.sin(alpha)])
 
 
 def _wrap(angle: float) -> float:
