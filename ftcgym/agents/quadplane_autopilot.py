@@ -11,7 +11,10 @@ Structure, per agent step:
 1. Mission (`MissionPlan`): take-off, hover, transition heading north, the circuit of `MissionTask`, back
    transition, return, landing. Phase changes use navigation data and the given airspeed.
 2. Guidance: a desired NED acceleration from position/velocity errors (quad phases) or from the circle's
-   cross-track error and the altitude (forward flight).
+   cross-track error and the altitude (forward flight). In cruise the heading is not commanded: the circle's
+   course rate is flown as a heading rate and the fin keeps the nose in the relative wind, as a fixed-wing
+   autopilot coordinates its turns (PX4's fixed-wing yaw controller). Holding the nose on the ground course
+   instead forced the crab angle into sideslip (14 deg, the rudder at its throw, in an 8-9 m/s crosswind).
 3. Outer loop: the acceleration becomes an attitude and a hover-rotor collective. The wing's lift, from the
    model at the given airspeed, the measured skew and alpha ~ pitch (001 eq. 8.6), is subtracted from what
    the rotors must carry; in forward flight the pitch follows the altitude error around the trim pitch. On
