@@ -274,7 +274,7 @@ class QuadPlaneAutopilot:
         accel[2] = -g.climb_accel * climb_error
         self.target = np.array([*(self._centre + radial * task.circuit_radius), -task.altitude])
         pitch = self._trim_pitch(airspeed) + g.climb_rate_gain * climb_error + self._altitude_integral
-        return accel, nav.heading, pitch
+        return accel, nav.heading, pitch          # no heading command: `_turn_rates` turns the nose
 
     # ------------------------------------------------------------------ outer loop
     def _outer_loop(self, nav, accel, yaw, pitch, airspeed):
