@@ -145,7 +145,7 @@ class QuadPlaneAutopilot:
             raise ValueError(f"airspeed: must be finite, got {airspeed!r}")
         self.airspeed_used = airspeed = max(airspeed, 0.0)
         self._time = float(info["time"]) if info and "time" in info else self._time + self.dt
-        nav = _Navigation(obs)
+        nav = _Navigation(obs, airspeed)
         self._advance_phase(nav, airspeed)
         if self.phase == "landed":
             return np.zeros(9, dtype=np.float32)
@@ -319,7 +319,7 @@ class QuadPlaneAutopilot:
         this autopilot does not model, pitched the airframe at up to 2.7 rad/s."""
         if airspeed < 1.0 or self.phase in QUAD_PHASES:    # hovering, the flow's direction is unknown
             return 0.0
-        alpha = nav.alpha(airspeed)
+        alpha = nav.alpha
         if in_cruise:
             g = self.gains
             # the margin grows only after the hand-over from the transition (`transition_blend_time`), over as
@@ -408,7 +408,7 @@ class QuadPlaneAutopilot:
     def _airframe_moment(self, nav, airspeed) -> np.ndarray:
         if airspeed < 1.0 or self.phase in QUAD_PHASES:
             return np.zeros(3)
-        air = nav.air_velocity(airspeed)
+        air = nav.air_velocity()
         _, moment = aero_wrench(self.params, air, nav.gyro, nav.skew, np.zeros(3), NO_ROTORS, ONES, 0.0, 0.0)
         return moment
 
@@ -422,7 +422,7 @@ class QuadPlaneAutopilot:
         B[2, :4] += self._yaw_per_newton * np.asarray(p.hover_yaw_signs, float)
         B[3, :4] = -axes[:, 2]
         if airspeed >= 1.0 and self.phase not in QUAD_PHASES:   # in quad mode the rotors fly it (001 Sec. 2)
-            air = nav.air_velocity(airspeed)
+            air = nav.air_velocity()
             _, m0 = aero_wrench(p, air, np.zeros(3), nav.skew, np.zeros(3), NO_ROTORS, ONES, 0.0, 0.0)
             for j in range(3):
                 delta = np.zeros(3)
@@ -469,9 +469,9 @@ class QuadPlaneAutopilot:
 
 
 class _Navigation:
-    """What the autopilot reads from one observation."""
+    """What the autopilot reads from one observation, with the airspeed it was given for this step."""
 
-    def __init__(self, obs):
+    def __init__(self, obs, airspeed: float = 0.0):
         self.position = np.asarray(obs["position"], float)
         self.velocity = np.asarray(obs["velocity"], float)
         self.gyro = np.asarray(obs["gyro"], float)
@@ -480,19 +480,17 @@ class _Navigation:
         self.pitch = float(-math.asin(np.clip(self.R[2, 0], -1.0, 1.0)))
         self.pusher_current = float(obs["pusher_current"][0])
         self.heading = math.atan2(self.R[1, 0], self.R[0, 0])
-        self.climb = -float(self.velocity[2])
+        self.airspeed = airspeed
+        # angle of attack ~ pitch - the flight-path angle through the air, asin(climb / airspeed) with the wind
+        # taken as horizontal (no vane: 001 Sec. 3, the VSQP has none). The path angle over the ground (climb /
+        # ground speed) overstated it upwind in strong wind (9 m/s over the ground at 18 m/s airspeed: twice the
+        # angle), and the model moment at that alpha fed every sink back into a pitch-up.
+        climb = -float(self.velocity[2])
+        self.alpha = self.pitch - math.asin(float(np.clip(climb / max(airspeed, 3.0), -1.0, 1.0)))
 
-    def alpha(self, airspeed: float) -> float:
-        """Angle of attack ~ pitch - the flight-path angle through the air, asin(climb / airspeed) with the
-        wind taken as horizontal (no vane: 001 Sec. 3, the VSQP has none). The path angle over the ground
-        (climb / ground speed) overstated it upwind in strong wind (9 m/s over the ground at 18 m/s airspeed:
-        twice the angle), and the model moment at that alpha fed every sink back into a pitch-up."""
-        return self.pitch - math.asin(float(np.clip(self.climb / max(airspeed, 3.0), -1.0, 1.0)))
-
-    def air_velocity(self, airspeed: float) -> np.ndarray:
-        """Body air velocity for the given airspeed at alpha, sideslip taken as zero."""
-        alpha = self.alpha(airspeed)
-        return airspeed * np.array([math.cos(alpha), 0.0, math.sin(alpha)])
+    def air_velocity(self) -> np.ndarray:
+        """Body air velocity at the step's airspeed and alpha, sideslip taken as zero."""
+        return self.airspeed * np.array([math.cos(self.alpha), 0.0, math.sin(self.alpha)])
 
 
 def _wrap(angle: float) -> float:

@@ -431,11 +431,15 @@ class AirdataEkfDetector:
     def _update_current_checks(self, readings: dict, pusher_speed: float) -> None:
         """Every sample, so their filters run before the EKF starts; they need the raw pusher speed and current
         (each check low-passes them itself, so it also runs alone on recorded readings)."""
-        for sensor, check in self.current_checks.items():
-            if "pusher_current" not in readings:
-                raise ValueError(f"airdata_ekf: reading 'pusher_current' missing; the {sensor} current check needs it "
-                                 f"(without it, drop 'current_check' from innovation_detectors[{sensor!r}])")
-            check.update(pusher_speed, float(np.asarray(readings["pusher_current"]).reshape(-1)[0]))
+        if not self.current_checks:
+            return
+        if "pusher_current" not in readings:
+            sensor = next(iter(self.current_checks))
+            raise ValueError(f"airdata_ekf: reading 'pusher_current' missing; the {sensor} current check needs it "
+                             f"(without it, drop 'current_check' from innovation_detectors[{sensor!r}])")
+        current = float(np.asarray(readings["pusher_current"]).reshape(-1)[0])
+        for check in self.current_checks.values():
+            check.update(pusher_speed, current)
 
     def _ekf(self, time: float) -> None:
         self._history.append((time, self._filtered.copy(), self.x.copy(), self.P.copy()))
