@@ -80,23 +80,42 @@ def test_criteria_only_count_while_armed():
     assert d.alarm and d.criterion == "norm"
 
 
-def obs_info(pitot, synthetic, alarm):
+def obs_info(pitot, synthetic, table2=None, cusum=None, sensor=None):
+    """An airdata_ekf-wrapped observation and info: the pitot tests' alarm times and a sensor (GNSS) alarm's."""
     obs = {"pitot_airspeed": np.array([pitot]), "fdd/airdata_ekf/airspeed": np.array([synthetic])}
-    return obs, {"time": 1.0, "fdd": {"airdata_ekf": {"alarm": alarm, "alarm_time": 1.0 if alarm else None}}}
+    first = min([t for t in (table2, cusum, sensor) if t is not None], default=None)
+    status = {"alarm": first is not None, "alarm_time": first, "alarm_time_table2": table2, "alarm_time_cusum": cusum,
+              "innovation_alarms": {"gnss": sensor}}
+    return obs, {"time": 3.0, "fdd": {"airdata_ekf": status}}
 
 
 def test_airspeed_switch_feeds_pitot_until_the_alarm_then_the_ekf():
     policy = AirspeedSwitchPolicy()
-    policy.reset(*obs_info(18.0, 17.0, False))
-    assert policy.act(*obs_info(18.0, 17.0, False))[0] == pytest.approx(18.0)
-    assert policy.act(*obs_info(0.0, 17.5, True))[0] == pytest.approx(17.5)
+    policy.reset(*obs_info(18.0, 17.0))
+    assert policy.act(*obs_info(18.0, 17.0))[0] == pytest.approx(18.0)
+    assert policy.act(*obs_info(0.0, 17.5, table2=1.0))[0] == pytest.approx(17.5)
     assert policy.switched_at == 1.0
-    assert policy.act(*obs_info(18.0, 16.0, False))[0] == pytest.approx(16.0)   # latched
-    assert SyntheticOnlyPolicy().act(*obs_info(18.0, 16.5, False))[0] == pytest.approx(16.5)
+    assert policy.act(*obs_info(18.0, 16.0))[0] == pytest.approx(16.0)   # latched
+    assert SyntheticOnlyPolicy().act(*obs_info(18.0, 16.5))[0] == pytest.approx(16.5)
+
+
+def test_airspeed_switch_acts_on_the_first_of_its_pitot_tests():
+    """By default the CUSUM's alarm (sooner on an incipient fault) switches as Table 2's does; `tests` picks."""
+    both, table2_only = AirspeedSwitchPolicy(), AirspeedSwitchPolicy(tests=("table2",))
+    assert both.act(*obs_info(12.0, 17.0, cusum=1.6))[0] == pytest.approx(17.0) and both.switched_at == 1.6
+    assert table2_only.act(*obs_info(12.0, 17.0, cusum=1.6))[0] == pytest.approx(12.0)
+    assert table2_only.switched_at is None
+    assert AirspeedSwitchPolicy().act(*obs_info(0.0, 17.0, table2=2.4, cusum=2.5))[0] == pytest.approx(17.0)
+    late = AirspeedSwitchPolicy()
+    late.act(*obs_info(0.0, 17.0, table2=2.4, cusum=2.2))
+    assert late.switched_at == 2.2
+    for bad in ((), ("glr",)):
+        with pytest.raises(ValueError, match="airspeed-switch: tests"):
+            AirspeedSwitchPolicy(tests=bad)
 
 
 def test_airspeed_switch_needs_the_detector():
-    obs, _ = obs_info(18.0, 17.0, False)
+    obs, _ = obs_info(18.0, 17.0)
     with pytest.raises(ValueError, match="airdata_ekf"):
         AirspeedSwitchPolicy().act(obs, {"time": 0.0})
 
@@ -156,13 +175,12 @@ def test_cusum_abrupt_drop_and_arming():
 
 def test_airspeed_switch_ignores_a_sensor_alarm():
     """A GNSS alarm of airdata_ekf (alarm, isolated "gnss", no pitot alarm) leaves the healthy pitot in use."""
-    obs, info = obs_info(18.0, 15.0, True)
-    info["fdd"]["airdata_ekf"].update(isolated="gnss", pitot_alarm=False, pitot_alarm_time=None)
+    obs, info = obs_info(18.0, 15.0, sensor=1.0)
     policy = AirspeedSwitchPolicy()
     policy.reset(obs, info)
     assert policy.act(obs, info)[0] == pytest.approx(18.0) and policy.switched_at is None
-    info["fdd"]["airdata_ekf"].update(pitot_alarm=True, pitot_alarm_time=2.0)
-    assert policy.act(obs, info)[0] == pytest.approx(15.0) and policy.switched_at == 2.0
+    assert policy.act(*obs_info(18.0, 15.0, table2=2.0, sensor=1.0))[0] == pytest.approx(15.0)
+    assert policy.switched_at == 2.0
 
 
 def first_confirmation(levels, residuals, armed=True):

@@ -17,8 +17,8 @@ POLICY_DESCRIPTIONS = {
     "autopilot": "quad-plane mission autopilot on QuadPlane-v0's actuators, scheduled on the pitot reading",
     "pitot-only": "QuadPlaneAutopilot-v0: feeds the autopilot the pitot reading, faulty or not",
     "oracle-airspeed": "QuadPlaneAutopilot-v0 upper bound: feeds the true airspeed (benchmark oracle info)",
-    "airspeed-switch": "QuadPlaneAutopilot-v0: the pitot reading until the airdata_ekf pitot alarm, then the EKF "
-                       "airspeed; needs the airdata_ekf detector",
+    "airspeed-switch": "QuadPlaneAutopilot-v0: the pitot reading until the first airdata_ekf pitot alarm (Table 2 "
+                       "or CUSUM), then the EKF airspeed; needs the airdata_ekf detector",
     "synthetic-only": "QuadPlaneAutopilot-v0: always the airdata_ekf EKF airspeed; needs the airdata_ekf detector",
     "learned-spin": "shipped SB3 policy (task rotor-loss-recovery): nominal until the loe_kalman alarm, then "
                     "motor commands from the trained model; needs the loe_kalman detector",
