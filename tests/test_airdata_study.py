@@ -63,13 +63,23 @@ def test_study_in_worker_processes_matches_one_process():
 
 def test_zeroed_pusher_rpm_isolated_within_a_second_in_cruise():
     """001 Sec. 7.3.2: the pusher RPM reads zero in forward flight (here from 32 s, cruise from ~25 s); the a_x
-    innovation criterion isolates "pusher_rpm" (001: 4.3 s) before any pitot criterion fires."""
+    innovation criterion isolates "pusher_rpm" (001: 4.3 s) before any pitot criterion fires. The EKF then
+    flies on the speed the pusher's current draws: over the 7.6 s after, its airspeed stays within 2.5 m/s
+    (RMSE 1.0 m/s; 001's precision after the fault 2.33). Dropping a_x instead, as 001 does, errs by 4.2 m/s
+    (RMSE 2.2)."""
     faults = [{"kind": "pusher_rpm_sensor", "time": 32.0}]
-    out = study.fly("qp-rpm-sensor-fault", seed=2, env_overrides={"faults": faults, "max_episode_seconds": 35.0})
+    overrides = {"faults": faults, "max_episode_seconds": 40.0}
+    out = study.fly("qp-rpm-sensor-fault", seed=2, env_overrides=overrides)
     assert out["fault_onset"] == pytest.approx(32.0)
     assert 0.0 < out["delay_pusher_rpm"] <= 1.0
     assert out["alarm_time_table2"] is None and out["alarm_time_cusum"] is None
-    assert out["airspeed_rmse_after_detection"] < 2.33           # 001's precision after the fault
+    assert out["airspeed_error_max_after_detection"] < 2.5 and out["airspeed_rmse_after_detection"] < 1.5
+    from ftcgym.fdd.airdata_ekf import INNOVATION_DETECTORS
+    dropped = {sensor: dict(spec) for sensor, spec in INNOVATION_DETECTORS.items()}
+    del dropped["pusher_rpm"]["speed_from_current"]
+    out = study.fly("qp-rpm-sensor-fault", seed=2, env_overrides=overrides,
+                    detector_kwargs={"innovation_detectors": dropped})
+    assert out["airspeed_error_max_after_detection"] > 3.5 and out["airspeed_rmse_after_detection"] > 1.5
 
 
 def test_pitot_confirmation_alone_isolates_the_zeroed_pusher_rpm():

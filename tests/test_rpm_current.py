@@ -7,7 +7,8 @@ import pytest
 from ftcgym.envs.pusher import PusherMotor, steady_state_current
 from ftcgym.envs.vsqp import VSQP
 from ftcgym.fdd.airdata_ekf import TakeoffGate
-from ftcgym.fdd.rpm_current import RpmCurrentCheck
+from ftcgym.fdd.propulsion_bayes import PropulsionModel
+from ftcgym.fdd.rpm_current import RpmCurrentCheck, speed_from_current
 
 HZ = 100.0
 #: the detector's model errs by 10%: all coefficients high (error_seed None), or with seeded random signs
@@ -106,3 +107,19 @@ def test_takeoff_gate_opens_about_1_m_up():
         assert 2.8 <= opened.index(True) / HZ <= 3.5
     with pytest.raises(ValueError, match="takeoff_window"):
         TakeoffGate(1.0, 0.0, HZ)
+
+
+def test_speed_from_current_inverts_the_steady_state_current():
+    """With the exact model, the speed drawn by 003 eq. (1)'s steady-state current comes back to within 1e-6
+    rad/s, at rest and in cruise; at rest a current at I_0 turns nothing, in an 18 m/s flow 0 A leaves the
+    propeller windmilling (the speed that draws 0 A)."""
+    exact = PropulsionModel(VSQP, coefficient_error=0.0)
+    for omega, airspeed in itertools.product((150.0, 500.0, 750.0, 900.0), (0.0, 12.0, 18.0, 22.0)):
+        current = steady_state_current(VSQP, omega, airspeed)
+        assert speed_from_current(exact, current, airspeed) == pytest.approx(omega, abs=1e-6)
+    assert speed_from_current(exact, VSQP.pusher_zero_load_current, 0.0) == 0.0
+    windmilling = speed_from_current(exact, 0.0, 18.0)
+    assert windmilling > 100.0 and steady_state_current(VSQP, windmilling, 18.0) == pytest.approx(0.0, abs=1e-9)
+    # the detector's model, 10% off on k_e and C_Q alike (the default), errs by their ratio only
+    assert speed_from_current(PropulsionModel(VSQP), steady_state_current(VSQP, 750.0, 18.0), 18.0) == \
+        pytest.approx(750.0, rel=0.03)

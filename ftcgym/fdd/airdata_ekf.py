@@ -40,7 +40,9 @@ TU Delft 2023 (seed 001). Pipeline per sample:
    model a_x (isolates "pusher_rpm": the pusher RPM enters a_x's model, eq. 13-14); on an alarm the sensor's
    rows get R = `fault_covariance` for the rest of the flight, so they no longer move the state. Departure:
    an a_x alarm isolates the pusher RPM only while the RPM reading is inconsistent with the pusher current
-   (`rpm_current.RpmCurrentCheck`, independent of the EKF); until then it is published as unconfirmed.
+   (`rpm_current.RpmCurrentCheck`, independent of the EKF); until then it is published as unconfirmed. And
+   once the pusher RPM is isolated, a_x stays in use with the speed its current draws (003 eq. 1-4) instead of
+   being dropped ("speed_from_current" in INNOVATION_DETECTORS).
 
 The force model (`ComponentForceModel`) is 001's (eq. 6-30: fuselage, hover rotors, wing, pusher; control
 surfaces and tail neglected as 001 Sec. 4 does), written in the same generalised forms as the simulator's
@@ -69,7 +71,8 @@ from scipy import signal
 from .base import Biquad, model_with_error
 from .pitot_detection import (CUSUM_DEFAULT, TABLE_2_DERIVATIVE, TABLE_2_NORM, PitotConfirmation,
                               PitotResidualDetector, ResidualCusum)
-from .rpm_current import RPM_CURRENT_CHECK, RpmCurrentCheck
+from .propulsion_bayes import PropulsionModel
+from .rpm_current import RPM_CURRENT_CHECK, RpmCurrentCheck, speed_from_current
 
 GRAVITY = 9.81
 TWO_PI = 2.0 * math.pi
@@ -85,6 +88,9 @@ ERROR_COEFFICIENTS = ("fuselage_drag_area", "hover_thrust_coefficient", "hover_d
                       "wing_oswald", "wing_cn90", "wing_spanwise_friction")
 
 
+SPEED_FROM_CURRENT_VARIANCE = 1e-3
+#: `AirdataEkfDetector._pusher_speed`: averaging time (s), least speed (rad/s) and skew (forward flight, 001 Table 5)
+SPEED_SCALE_SECONDS, SPEED_SCALE_MIN_SPEED, SPEED_SCALE_MIN_SKEW = 10.0, 300.0, math.radians(80.0)
 #: 001 Sec. 6.2 / Table 2-3: one detector per measurement innovation, named by the sensor it isolates.
 #: channels index z = [V_N V_E V_D a_x a_y a_z]; norm / derivative = (threshold, time s, cutoff Hz).
 #: GNSS: Table 2 as printed; Table 2 gives the norm row for V_x and the derivative row for V_y, both run on each
@@ -111,7 +117,8 @@ ERROR_COEFFICIENTS = ("fuselage_drag_area", "hover_thrust_coefficient", "hover_d
 INNOVATION_DETECTORS = {
     "gnss": {"channels": (0, 1, 2), "norm": (2.5, 0.08, 5.0), "derivative": (30.0, 0.08, 5.0), "rollback": 0.16},
     "pusher_rpm": {"channels": (3,), "norm": (0.41, 0.2, 1.0), "derivative": (250.0, 0.12, 0.1), "sign": 1,
-                   "pitot_confirmation": (0.15, 2.0, 3.0, 0.2), "rollback": 6.0, "current_check": RPM_CURRENT_CHECK},
+                   "pitot_confirmation": (0.15, 2.0, 3.0, 0.2), "rollback": 6.0, "current_check": RPM_CURRENT_CHECK,
+                   "speed_from_current": SPEED_FROM_CURRENT_VARIANCE},
 }
 #: "pitot_confirmation" (level m/s^2, window s, residual m/s, hold s; `PitotConfirmation`): a third criterion,
 #: for the weak bursts. Our EKF absorbs the zeroed RPM by lowering its airspeed 3-6 m/s within 0.5 s (001 Fig.
@@ -134,6 +141,17 @@ INNOVATION_DETECTORS = {
 #: (`AirdataEkfDetector._roll_back`, a departure from 001). GNSS: 0.16 s = the criteria's 2 samples (0.08 s)
 #: plus ~2 samples of delay of the 5 Hz prefilter and innovation low-pass before a zero reading crosses them.
 #: Pusher RPM: 6 s, longer than the a_x criterion's slowest detections (~4.4 s on the tuning flights).
+#: "speed_from_current" (variance, (m/s^2)^2; pusher RPM only; needs "pusher_current"): once the RPM sensor is
+#: isolated, the a_x row stays in use with the pusher speed that the measured current draws at the EKF's airspeed
+#: (`rpm_current.speed_from_current`, 003 eq. 1-4 in steady state), its variance raised to this. A departure from
+#: 001 Sec. 6.2, which drops the row: without a_x the airspeed along x is tied to the GNSS only through the wing's
+#: lift model, and the EKF airspeed ran 1.5-3.5 m/s low for the rest of the flight. Chosen on the tuning flights
+#: (`qp-rpm-sensor-fault`, base seed 1000, 10 flights, 75 s; largest error after detection / median RMSE):
+#: without the row 5.08 / 1.74 m/s; with it at 1e-4, 1e-3, 3e-3, 1e-2: 2.08 / 0.52, 2.39 / 0.54, 2.80 / 0.73,
+#: 3.63 / 1.12 (uncalibrated speed). With seeded signs on the model error (`error_seed` 1) the uncalibrated speed
+#: erred by ~8% and 1e-3 gave 4.21 / 1.92, hence the calibration in `_pusher_speed`: with it 1e-3 gives
+#: 2.32 / 0.54 (default error), 2.01 / 0.58 (`error_seed` 1), 4.01 / 1.03 (`error_seed` 2, whose EKF also raised
+#: pitot or GNSS false alarms in 5 of the 10 flights before the fault).
 #: Sec. 6.2: "increases its covariance": the variance (units^2) a measurement gets once its detector alarms
 FAULT_COVARIANCE = 1e6
 PITOT_CRITERIA = ("table2", "cusum", "either")
@@ -375,6 +393,10 @@ class AirdataEkfDetector:
         self.current_checks = {sensor: RpmCurrentCheck(params, sample_hz, *spec["current_check"],
                                                        coefficient_error=coefficient_error, error_seed=error_seed)
                                for sensor, spec in (innovation_detectors or {}).items() if "current_check" in spec}
+        # the pusher speed from its current once the RPM sensor is isolated (see INNOVATION_DETECTORS)
+        self._current_variance = (innovation_detectors or {}).get("pusher_rpm", {}).get("speed_from_current")
+        self._propulsion = (PropulsionModel(params, coefficient_error, error_seed)
+                            if self._current_variance is not None else None)
         self._history_length = max([round(t * ekf_hz) for t in self.rollback.values()], default=0) + 1
         self.reset()
 
@@ -402,6 +424,7 @@ class AirdataEkfDetector:
         self.innovation_unconfirmed = {sensor: None for sensor in self.current_checks}
         self._newest_alarm = None
         self._history = deque(maxlen=self._history_length)
+        self._speed_scale, self._speed_scale_samples = 1.0, 0
         self.trace = []
 
     def update(self, readings: dict, time: float, command=None) -> None:
@@ -411,6 +434,9 @@ class AirdataEkfDetector:
         self._last_q = q
         keys = ("accel", "gyro", "attitude", self.velocity_key, "pusher_speed", "hover_rotor_speed", "skew")
         parts = [q if key == "attitude" else np.asarray(readings[key], dtype=float).reshape(-1) for key in keys]
+        if self._propulsion is not None:                       # s[19]: filtered like the RPM it stands in for
+            keys += ("pusher_current",)
+            parts.append(np.array([self._current_reading(readings, "the pusher_rpm speed_from_current")]))
         for key, part in zip(keys, parts):
             if not np.all(np.isfinite(part)):
                 raise ValueError(f"airdata_ekf: reading {key!r} is not finite at t = {time}: {part.tolist()}")
@@ -433,16 +459,20 @@ class AirdataEkfDetector:
         (each check low-passes them itself, so it also runs alone on recorded readings)."""
         if not self.current_checks:
             return
-        if "pusher_current" not in readings:
-            sensor = next(iter(self.current_checks))
-            raise ValueError(f"airdata_ekf: reading 'pusher_current' missing; the {sensor} current check needs it "
-                             f"(without it, drop 'current_check' from innovation_detectors[{sensor!r}])")
-        current = float(np.asarray(readings["pusher_current"]).reshape(-1)[0])
+        current = self._current_reading(readings, f"the {next(iter(self.current_checks))} current_check")
         for check in self.current_checks.values():
             check.update(pusher_speed, current)
 
+    @staticmethod
+    def _current_reading(readings: dict, user: str) -> float:
+        if "pusher_current" not in readings:
+            raise ValueError(f"airdata_ekf: reading 'pusher_current' missing; {user} needs it (without it, drop "
+                             f"that key from innovation_detectors)")
+        return float(np.asarray(readings["pusher_current"]).reshape(-1)[0])
+
     def _ekf(self, time: float) -> None:
-        self._history.append((time, self._filtered.copy(), self.x.copy(), self.P.copy()))
+        self._history.append((time, self._filtered.copy(), self.x.copy(), self.P.copy(),
+                              (self._speed_scale, self._speed_scale_samples)))
         self._ekf_cycle(self._filtered, time)
         self._armed = time - self.start_time >= self.detection_delay - 1e-9
         residual = self._pitot_residual(time)
@@ -478,7 +508,8 @@ class AirdataEkfDetector:
             return
         replay = list(self._history)[-min(steps, len(self._history)):]
         self.x, self.P = replay[0][2].copy(), replay[0][3].copy()
-        for time, sample, _, _ in replay:
+        self._speed_scale, self._speed_scale_samples = replay[0][4]
+        for time, sample, *_ in replay:
             self._ekf_cycle(sample, time)
 
     def _rollback_seconds(self) -> float:
@@ -499,6 +530,10 @@ class AirdataEkfDetector:
             if alarm_time is not None:                       # Sec. 6.2: a faulty measurement no longer updates
                 for c in self.innovation_detectors[sensor]:
                     R[c, c] = self.fault_covariance
+        if self._propulsion is not None:
+            omega_p, variance = self._pusher_speed(omega_p, float(s[19]), skew)
+            if variance is not None:
+                R[3, 3] = variance                           # a_x back in use, on the current's speed
 
         def h(x):                                            # eq. (3) and (31)-(33)
             return np.concatenate([Rot @ x[:3] + x[3:], model.specific_force(x[:3], omega_p, omega_h, skew)])
@@ -515,6 +550,24 @@ class AirdataEkfDetector:
 
         z = np.concatenate([v_gnd, a])
         self.x, self.P, self.innovation, _ = ekf_step(self.x, self.P, self.dt, (a, omega, Rot), z, h, H, Q, R)
+
+    def _pusher_speed(self, reading: float, current: float, skew: float) -> tuple[float, float | None]:
+        """The pusher speed the EKF uses and, once the RPM sensor is isolated, a_x's variance (see
+        INNOVATION_DETECTORS["pusher_rpm"]["speed_from_current"]). While the sensor is trusted, the ratio of the
+        read speed to the one the model gives from the current is averaged (over SPEED_SCALE_SECONDS once
+        there are that many samples) in forward flight with the pusher driven; after, it scales the model's
+        speed (not in the transition: spinning up against the ESC's current limit the ratio is ~0.86, ~1.0
+        in cruise on tuning seed 3 of qp-mission): it takes out the propulsion model's own
+        error (`coefficient_error` on k_e and C_Q), which alone biased the speed by up to 8%. The ratio is part
+        of the state the roll-back restores, so the faulty samples before the alarm do not enter it."""
+        estimate = speed_from_current(self._propulsion, current, float(self.x[0]))
+        if self.innovation_alarms.get("pusher_rpm") is not None:
+            return self._speed_scale * estimate, self._current_variance
+        if skew >= SPEED_SCALE_MIN_SKEW and min(estimate, reading) > SPEED_SCALE_MIN_SPEED:
+            self._speed_scale_samples += 1                   # the mean of the ratios so far, then a moving one
+            weight = max(1.0 / self._speed_scale_samples, self.dt / SPEED_SCALE_SECONDS)
+            self._speed_scale += (reading / estimate - self._speed_scale) * weight
+        return reading, None
 
     def _detect_innovation_faults(self, time: float, pitot_residual: float | None) -> bool:
         """Sec. 6.2: each innovation channel through its Table 2 criteria, and a sensor's `PitotConfirmation`

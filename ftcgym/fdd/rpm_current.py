@@ -36,7 +36,23 @@ from scipy import signal
 
 from .base import Biquad
 from .pitot_detection import ThresholdCriterion
-from .propulsion_bayes import PropulsionModel
+from .propulsion_bayes import TWO_PI, PropulsionModel
+
+def speed_from_current(model: PropulsionModel, current: float, airspeed: float) -> float:
+    """The pusher speed (rad/s) that draws `current` (A) at `airspeed` (m/s) in steady state: 003 eq. (1) with
+    dw/dt = 0, k_e (I_e - I_0) = c_v w + Q_a(w, V), and eq. (2)-(4) expanded in n = w / 2 pi, a quadratic
+    a w^2 + b w + c = 0 in w (its positive root; 0 when the current cannot turn the propeller)."""
+    _, c_v, i_0 = model.x_star
+    rho, d, (cq0, cq1, cq2) = model.rho, model.D, model.cq
+    V = max(float(airspeed), 0.0)
+    a = rho * d ** 5 * cq0 / (TWO_PI * TWO_PI)
+    b = c_v + rho * d ** 4 * cq1 * V / TWO_PI
+    c = rho * d ** 3 * cq2 * V * V - model.k_e * (float(current) - i_0)
+    discriminant = b * b - 4.0 * a * c
+    if a <= 0.0 or discriminant < 0.0:
+        return 0.0
+    return max((-b + math.sqrt(discriminant)) / (2.0 * a), 0.0)
+
 
 #: (allowance, threshold A, hold s) of `RpmCurrentCheck`
 RPM_CURRENT_CHECK = (1.0, 2.0, 0.2)
