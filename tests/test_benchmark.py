@@ -20,7 +20,7 @@ DESIGN_EPISODE_FIELDS = [
 ]
 # ftcgym's additions after them: the quad-plane mission fields (null for the quadrotor).
 QUADPLANE_FIELDS = ["mission_complete", "time_quad_mode", "time_transition", "time_forward_flight",
-                    "cruise_airspeed_rmse", "max_attitude_deg"]
+                    "cruise_airspeed_rmse", "max_attitude_deg", "upset_attitude_deg", "upset_altitude_loss"]
 DESIGN_SUMMARY_FIELDS = [
     "scenario", "policy", "episodes", "detection_delay_median", "detection_delay_p95",
     "missed_detection_rate", "false_alarms_per_hour", "isolation_accuracy",
@@ -71,6 +71,18 @@ def test_altitude_loss_from_onset_to_lowest_point():
     assert metrics.altitude_loss(TIME, altitude, onset=2.0) == pytest.approx(1.2)
     assert metrics.altitude_loss(TIME, np.linspace(1, 5, TIME.size), onset=2.0) == 0.0
     assert metrics.altitude_loss(TIME, altitude, onset=11.0) is None
+
+
+def test_upset_looks_only_at_the_window_after_onset():
+    """A 60 deg roll and a 3 m sink 4 s after onset count; a 90 deg bank and a landing 12 s after do not."""
+    t = np.arange(0.0, 30.0, 0.1)
+    roll = np.radians(np.select([(t > 24) & (t < 26), (t > 5) & (t < 7), t < 1], [90.0, 60.0, 70.0], 10.0))
+    pitch = np.radians(np.full_like(t, 5.0))
+    altitude = 30.0 - 3.0 * ((t > 6) & (t < 12)) - 25.0 * (t > 14)
+    attitude, loss = metrics.upset(t, altitude, roll, pitch, onset=2.0, window=10.0)
+    assert attitude == pytest.approx(60.0) and loss == pytest.approx(3.0)
+    assert metrics.upset(t, altitude, roll, np.radians(np.full_like(t, 75.0)), onset=2.0)[0] == pytest.approx(75.0)
+    assert metrics.upset(t, altitude, roll, pitch, onset=31.0) is None
 
 
 def test_position_rmse():

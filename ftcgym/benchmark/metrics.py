@@ -17,7 +17,7 @@ EPISODE_FIELDS = (
 )
 #: quad-plane mission fields (issue 5), appended to each episode row; null for the quadrotor
 QUADPLANE_FIELDS = ("mission_complete", "time_quad_mode", "time_transition", "time_forward_flight",
-                    "cruise_airspeed_rmse", "max_attitude_deg")
+                    "cruise_airspeed_rmse", "max_attitude_deg", "upset_attitude_deg", "upset_altitude_loss")
 EPISODE_FIELDS = EPISODE_FIELDS + QUADPLANE_FIELDS
 SUMMARY_FIELDS = (
     "scenario", "policy", "episodes", "detection_delay_median", "detection_delay_p95",
@@ -127,6 +127,21 @@ def altitude_loss(time, altitude, onset: float) -> float | None:
     if after.size == 0:
         return None
     return max(0.0, float(after[0] - after.min()))
+
+
+#: How long after a fault's onset the upset fields look (s): a recovery flown on a wrong reading shows within it
+UPSET_WINDOW = 10.0
+
+
+def upset(time, altitude, roll, pitch, onset: float, window: float = UPSET_WINDOW) -> tuple[float, float] | None:
+    """(largest |roll| or |pitch|, deg; altitude at onset minus the lowest, m, at least 0) over the `window` s
+    after onset; None if onset is past the end."""
+    time = np.asarray(time, dtype=float)
+    inside = (time >= onset) & (time <= onset + window)
+    if not inside.any():
+        return None
+    attitude = np.degrees(np.maximum(np.abs(np.asarray(roll)[inside]), np.abs(np.asarray(pitch)[inside])))
+    return float(attitude.max()), altitude_loss(time[inside], np.asarray(altitude, dtype=float)[inside], onset)
 
 
 def position_rmse(position, reference_position) -> float:

@@ -194,6 +194,9 @@ def _quadplane_scores(log: EpisodeLog, onset) -> dict:
     roll, pitch = metrics.roll_pitch(log.attitude)
     scores = {**metrics.flight_phase_times(log.time, log.skew, altitude > 0.5),
               "max_attitude_deg": float(np.degrees(np.max(np.maximum(np.abs(roll), np.abs(pitch)))))}
+    if onset is not None:
+        window = metrics.upset(log.time, altitude, roll, pitch, onset)
+        scores["upset_attitude_deg"], scores["upset_altitude_loss"] = window if window else (None, None)
     if log.airspeed_used is None:
         return scores
     airborne = altitude > 0.5
