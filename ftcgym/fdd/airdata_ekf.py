@@ -88,6 +88,7 @@ ERROR_COEFFICIENTS = ("fuselage_drag_area", "hover_thrust_coefficient", "hover_d
                       "wing_oswald", "wing_cn90", "wing_spanwise_friction")
 
 
+#: a_x's variance once the pusher speed comes from its current ("speed_from_current" below)
 SPEED_FROM_CURRENT_VARIANCE = 1e-3
 #: `AirdataEkfDetector._pusher_speed`: averaging time (s), least speed (rad/s) and skew (forward flight, 001 Table 5)
 SPEED_SCALE_SECONDS, SPEED_SCALE_MIN_SPEED, SPEED_SCALE_MIN_SKEW = 10.0, 300.0, math.radians(80.0)
@@ -556,10 +557,10 @@ class AirdataEkfDetector:
         INNOVATION_DETECTORS["pusher_rpm"]["speed_from_current"]). While the sensor is trusted, the ratio of the
         read speed to the one the model gives from the current is averaged (over SPEED_SCALE_SECONDS once
         there are that many samples) in forward flight with the pusher driven; after, it scales the model's
-        speed (not in the transition: spinning up against the ESC's current limit the ratio is ~0.86, ~1.0
-        in cruise on tuning seed 3 of qp-mission): it takes out the propulsion model's own
-        error (`coefficient_error` on k_e and C_Q), which alone biased the speed by up to 8%. The ratio is part
-        of the state the roll-back restores, so the faulty samples before the alarm do not enter it."""
+        speed. It takes out the propulsion model's own error (`coefficient_error` on k_e and C_Q), which
+        alone biased the speed by up to 8%. Not in the transition: spinning up against the ESC's current
+        limit the ratio is ~0.86, in cruise ~1.0 (qp-mission, seed 3). The ratio is part of the state the
+        roll-back restores, so the faulty samples before the alarm do not enter it."""
         estimate = speed_from_current(self._propulsion, current, float(self.x[0]))
         if self.innovation_alarms.get("pusher_rpm") is not None:
             return self._speed_scale * estimate, self._current_variance
