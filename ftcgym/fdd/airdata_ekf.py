@@ -561,10 +561,13 @@ class AirdataEkfDetector:
         alone biased the speed by up to 8%. Not in the transition: spinning up against the ESC's current
         limit the ratio is ~0.86, in cruise ~1.0 (qp-mission, seed 3). The ratio is part of the state the
         roll-back restores, so the faulty samples before the alarm do not enter it."""
+        isolated = self.innovation_alarms.get("pusher_rpm") is not None
+        if not isolated and (skew < SPEED_SCALE_MIN_SKEW or reading <= SPEED_SCALE_MIN_SPEED):
+            return reading, None
         estimate = speed_from_current(self._propulsion, current, float(self.x[0]))
-        if self.innovation_alarms.get("pusher_rpm") is not None:
+        if isolated:
             return self._speed_scale * estimate, self._current_variance
-        if skew >= SPEED_SCALE_MIN_SKEW and min(estimate, reading) > SPEED_SCALE_MIN_SPEED:
+        if estimate > SPEED_SCALE_MIN_SPEED:
             self._speed_scale_samples += 1                   # the mean of the ratios so far, then a moving one
             weight = max(1.0 / self._speed_scale_samples, self.dt / SPEED_SCALE_SECONDS)
             self._speed_scale += (reading / estimate - self._speed_scale) * weight
