@@ -375,10 +375,9 @@ class QuadPlaneAutopilot:
     def _turn_rates(self, nav) -> np.ndarray:
         """Body rates of the course rate the circle asks for, flown as a heading rate (Euler psi-dot to body
         rates): in forward flight the heading follows the turn, the fin keeps the nose in the air flow."""
-        roll = math.atan2(nav.R[2, 1], nav.R[2, 2])
         cos_pitch = math.cos(nav.pitch)
-        return self._course_rate * np.array([-math.sin(nav.pitch), math.sin(roll) * cos_pitch,
-                                             math.cos(roll) * cos_pitch])
+        return self._course_rate * np.array([-math.sin(nav.pitch), math.sin(nav.roll) * cos_pitch,
+                                             math.cos(nav.roll) * cos_pitch])
 
     def _allocate(self, B, demand, collective):
         """Regularised weighted least squares over rotors and surfaces (001 Sec. 8.1: WLS allocation), then
@@ -478,6 +477,7 @@ class _Navigation:
         self.R = rotation_matrix(obs["attitude"])
         self.skew = float(obs["skew"][0])
         self.pitch = float(-math.asin(np.clip(self.R[2, 0], -1.0, 1.0)))
+        self.roll = math.atan2(self.R[2, 1], self.R[2, 2])
         self.pusher_current = float(obs["pusher_current"][0])
         self.heading = math.atan2(self.R[1, 0], self.R[0, 0])
         self.airspeed = airspeed
