@@ -130,6 +130,28 @@ def test_gnss_fault_detected_isolated_and_rolled_back():
     assert np.linalg.norm(hover_with_gnss_jump(innovation_detectors=no_rollback).x[3:]) > 1.0
 
 
+def hover_with_thrust_deficit(**kwargs):
+    """25 s of still hover whose rotors, by the detector's model, give 10% less thrust than the measured a_z (a
+    hover thrust coefficient 10% low, as `error_seed` 2 draws it)."""
+    det = AirdataEkfDetector(VSQP, 100.0, **kwargs)
+    base = hover_readings(det)
+    base["hover_rotor_speed"] = base["hover_rotor_speed"] * math.sqrt(0.9)
+    for k in range(2500):
+        t = 0.01 * k
+        det.update({**base, "position": np.array([0.0, 0.0, -(0.0 if t < 0.2 else 5.0)])}, t)
+    return det
+
+
+def test_vertical_wind_fixed_keeps_a_thrust_deficit_out_of_the_wind():
+    """001's vertical wind state explains the missing thrust as air rising past the vehicle (measured: w 3.46 m/s,
+    mu_z -3.46 m/s in still air); held at 0 (`vertical_wind="fixed"`) the airspeed stays 0."""
+    free, fixed = hover_with_thrust_deficit(), hover_with_thrust_deficit(vertical_wind="fixed")
+    assert free.x[2] > 2.0 and free.x[5] < -2.0 and free.airspeed > 2.0
+    assert fixed.x[5] == 0.0 and fixed.airspeed < 0.05
+    with pytest.raises(ValueError, match="vertical_wind"):
+        AirdataEkfDetector(VSQP, 100.0, vertical_wind="free")
+
+
 def test_innovation_detectors_wait_for_arming_and_can_be_off():
     det = hover_with_gnss_jump(jump_time=10.0, seconds=15.0)         # armed 20 s after the start only
     assert not det.status()["alarm"]

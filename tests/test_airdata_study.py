@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 from ftcgym.benchmark import airdata_study as study
+from ftcgym.benchmark.backends import EpisodesFailed
 
 
 def status(**alarms):
@@ -59,6 +60,15 @@ def test_study_in_worker_processes_matches_one_process():
     assert sorted(seen) == [0, 1] and [r["seed"] for r in parallel] == [r["seed"] for r in serial]
     assert [r["ekf_started"] for r in parallel] == [r["ekf_started"] for r in serial]
     assert [r["airborne_time"] for r in parallel] == [r["airborne_time"] for r in serial]
+
+
+def test_study_passes_detector_kwargs_to_the_detector():
+    """`--detector-kwargs` reach the airdata_ekf: a value it refuses is refused by name."""
+    with pytest.raises(EpisodesFailed, match="ValueError: vertical_wind: 'free'"):
+        study.study("qp-gnss-fault", 1, seed=3, env_overrides={"max_episode_seconds": 0.5},
+                    detector_kwargs={"vertical_wind": "free"})
+    with pytest.raises(ValueError, match="detector_kwargs"):
+        study.study("qp-gnss-fault", 1, seed=3, detector_kwargs=[2])
 
 
 def test_zeroed_pusher_rpm_isolated_within_a_second_in_cruise():

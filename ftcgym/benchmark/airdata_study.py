@@ -116,10 +116,15 @@ def _max(values: np.ndarray):
 
 
 def study(scenario_name: str, episodes: int, seed: int, policy_name: str = "oracle-airspeed",
-          env_overrides: dict | None = None, record: bool = False, progress=None, workers: int = 1) -> list[dict]:
+          env_overrides: dict | None = None, record: bool = False, progress=None, workers: int = 1,
+          detector_kwargs: dict | None = None) -> list[dict]:
     """`episodes` episodes seeded as `ftcgym bench --seed seed` seeds them, in episode order; `workers` > 1 flies
-    them in that many processes (`backends.run_jobs`); `progress(index, row)` sees each as it finishes."""
+    them in that many processes (`backends.run_jobs`); `progress(index, row)` sees each as it finishes;
+    `detector_kwargs` override the scenario's (e.g. {"error_seed": 2, "vertical_wind": "fixed"})."""
+    if not isinstance(detector_kwargs or {}, dict):
+        raise ValueError(f"detector_kwargs: need a JSON object of airdata_ekf kwargs, got {detector_kwargs!r}")
     scenario = get_scenario(scenario_name)
+    scenario = dataclasses.replace(scenario, detector_kwargs={**scenario.detector_kwargs, **(detector_kwargs or {})})
     jobs = [Job(f"{scenario_name}/{policy_name}/{index}", scenario, policy_name, episode_seed(seed, index),
                 env_overrides) for index in range(episodes)]
     order = {job.key: index for index, job in enumerate(jobs)}
@@ -131,7 +136,7 @@ def study(scenario_name: str, episodes: int, seed: int, policy_name: str = "orac
 
 def _fly_job(scenario, policy_name: str, seed: int, env_overrides, record: bool = False) -> dict:
     """`fly` with `run_jobs`' episode signature (module level: it is pickled to the workers)."""
-    return fly(scenario.name, seed, policy_name, env_overrides, record)
+    return fly(scenario.name, seed, policy_name, env_overrides, record, scenario.detector_kwargs)
 
 
 def summary(results: list[dict]) -> dict:
@@ -249,13 +254,15 @@ def _common(parser, episodes: int) -> None:
     parser.add_argument("--policy", default="oracle-airspeed", metavar="NAME")
     parser.add_argument("--env-kwargs", type=json.loads, default=None, metavar="JSON",
                         help="merged into the scenario's env kwargs")
+    parser.add_argument("--detector-kwargs", type=json.loads, default=None, metavar="JSON",
+                        help='merged into the scenario\'s airdata_ekf kwargs, e.g. \'{"error_seed": 2}\'')
     parser.add_argument("--workers", type=int_at_least(1), default=1, metavar="W",
                         help="episodes flown in parallel processes (default 1)")
 
 
 def main_study(args) -> int:
     config = {"scenario": args.scenario, "episodes": args.episodes, "seed": args.seed, "policy": args.policy,
-              "env_kwargs": args.env_kwargs}
+              "env_kwargs": args.env_kwargs, "detector_kwargs": args.detector_kwargs}
     done = []
 
     def progress(index, row):
@@ -266,7 +273,7 @@ def main_study(args) -> int:
         _write(args.out, done, config)          # after every episode: a long run stopped early keeps its rows
 
     results = study(args.scenario, args.episodes, args.seed, args.policy, args.env_kwargs, progress=progress,
-                    workers=args.workers)
+                    workers=args.workers, detector_kwargs=args.detector_kwargs)
     print(json.dumps(summary(results), indent=1))
     return 0
 
@@ -282,7 +289,7 @@ def main_thresholds(args) -> int:
         segments = load_segments(args.load)
     else:
         results = study(args.scenario, args.episodes, args.seed, args.policy, args.env_kwargs, record=True,
-                        workers=args.workers)
+                        workers=args.workers, detector_kwargs=args.detector_kwargs)
         if any(r["fault_onset"] is not None for r in results):
             raise ValueError(f"scenario {args.scenario!r} has faults: thresholds need fault-free flights")
         segments = traces_to_segments([r["trace"] for r in results])
