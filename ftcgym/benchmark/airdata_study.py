@@ -1,10 +1,10 @@
 """Measurements of the airdata_ekf detectors (issue 6 parts 1-3): every criterion's alarm on the same flights,
 the airspeed error after a sensor fault, and threshold proposals from fault-free residual statistics.
 
-    ftcgym airdata-study --scenario NAME [--episodes N] [--seed S] [--policy P] [--env-kwargs JSON] [--workers W]
-                         [--out F]
-    ftcgym thresholds [--scenario NAME] [--episodes N] [--seed S] [--workers W] [--target RATE]
-                      [--save F.npz | --load F.npz]
+    ftcgym airdata-study --scenario NAME [--episodes N] [--seed S] [--policy P] [--env-kwargs JSON]
+                         [--detector-kwargs JSON] [--workers W] [--out F]
+    ftcgym thresholds [--scenario NAME] [--episodes N] [--seed S] [--detector-kwargs JSON] [--workers W]
+                      [--target RATE] [--save F.npz | --load F.npz]
 
 `ftcgym bench` scores one alarm per detector (the first); these commands read the detector's status instead,
 so one flight gives the Table 2 and the CUSUM pitot alarm times and each innovation detector's. Episodes are
