@@ -38,6 +38,7 @@ from .base import Biquad
 from .pitot_detection import ThresholdCriterion
 from .propulsion_bayes import TWO_PI, PropulsionModel
 
+
 def speed_from_current(model: PropulsionModel, current: float, airspeed: float) -> float:
     """The pusher speed (rad/s) that draws `current` (A) at `airspeed` (m/s) in steady state: 003 eq. (1) with
     dw/dt = 0, k_e (I_e - I_0) = c_v w + Q_a(w, V), and eq. (2)-(4) expanded in n = w / 2 pi, a quadratic
