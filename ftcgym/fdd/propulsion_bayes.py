@@ -65,7 +65,13 @@ Per sample (`update`):
    too) while the model's omega_dot took the pitot's raw samples, 2 in 10 (0 on seed 1000) with the airspeed
    low-passed. What remains is not understood: R, the Bayes filters' scale from the calibration residual, is
    1.0-2x the residual's variance in detection there (2.2-2.9x with 003's sensors), and white residuals of
-   variance R alarm in only ~0.2% of 20 s windows (offline).
+   variance R alarm in only ~0.2% of 20 s windows (offline). One such flight (`--seed 306`, 4th, alarm at 195 s)
+   replayed offline with the speeds and currents as flown: with the true airspeed, no alarm; with the lagged
+   truth plus fresh 0.3 m/s noise, redrawn 80 times, 7 replays alarmed before the flight's own airspeed step (2%
+   of windows), 4 of them in the window ending at 155 s. Those windows' mean noise was not extreme (z -0.9 to
+   2.3) nor their R low, so the pitot's noise adds to slow content of the residual there. The test is that
+   fine: on the flight as flown, the alarm window's mean pitot error stood 0.017 m/s from the flight's, which
+   moved the torque residual by 0.44 sqrt(R).
 
 The detector only runs while the pusher drives wing-borne flight (airspeed >= `min_airspeed` and current
 >= `min_current`, held for `settle` s) below 98% of the ESC's speed limit (there the speed is clipped and
