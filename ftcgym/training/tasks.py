@@ -28,7 +28,8 @@ from the nominal controller at the `loe_kalman` alarm after a propeller loss.
 - Domain randomisation (constructor keywords, drawn per episode from the env's seeded RNG):
   `vehicle` (a name or a list of names), `wind` (a dict, or a list of dicts to draw from, or
   {"mean_speed": [lo, hi], "turbulence": ...} for a random horizontal direction), `onset` ([lo, hi] s),
-  `failed_rotor` ("random", an index or a list of indices).
+  `failed_rotor` ("random", an index or a list of indices), `task` (a quadrotor task, or a list of tasks to
+  draw from: a policy trained on hover alone meets a rotor loss at speed out of its training distribution).
 """
 from __future__ import annotations
 
@@ -98,7 +99,7 @@ class RotorLossRecoveryEnv(gym.Env):
 
     Keywords: vehicle, wind, onset, failed_rotor (randomisation, module docstring); horizon_seconds (post-
     alarm episode length, default 5); action_repeat (simulator steps per action, default 2); task (the
-    quadrotor's task, default "hover"); agent_hz (the quadrotor's control rate, default 500);
+    quadrotor's task, default "hover", or a list of tasks drawn per episode); agent_hz (the quadrotor's control rate, default 500);
     detector_kwargs (for `loe_kalman`); sensors (the quadrotor's sensor overrides); expert (add
     `info["expert_action"]`, module docstring).
     """
@@ -117,13 +118,14 @@ class RotorLossRecoveryEnv(gym.Env):
         if int(action_repeat) != action_repeat or action_repeat < 1:
             raise ValueError(f"action_repeat: must be an integer >= 1, got {action_repeat!r}")
         self.horizon_seconds, self.action_repeat = float(horizon_seconds), int(action_repeat)
-        self.task, self.agent_hz, self.sensors = task, float(agent_hz), sensors
+        self.tasks = _tasks(task)
+        self.agent_hz, self.sensors = float(agent_hz), sensors
         self.detector_kwargs = dict(detector_kwargs or {})
         self.expert = bool(expert)
         self._expert_controller, self._expert_action = None, None
         self.observation_space = spaces.Box(-FEATURE_BOUND, FEATURE_BOUND, (N_FEATURES,), np.float32)
         self.action_space = spaces.Box(-1.0, 1.0, (4,), np.float32)
-        self._envs: dict[str, gym.Env] = {}   # one simulator per vehicle, built on first use
+        self._envs: dict[tuple, gym.Env] = {}   # one simulator per (vehicle, task), built on first use
         self.env = None
 
     # ------------------------------------------------------------------------------------ episodes
@@ -164,7 +166,7 @@ class RotorLossRecoveryEnv(gym.Env):
         from ftcgym.envs.wind import DrydenWind
 
         rng = self.np_random
-        self.env = self._simulator(self.vehicles[rng.integers(len(self.vehicles))])
+        self.env = self._simulator(self.vehicles[rng.integers(len(self.vehicles))], int(rng.integers(len(self.tasks))))
         base = self.env.unwrapped
         base.wind = DrydenWind.from_config(_draw_wind(self.winds[rng.integers(len(self.winds))], rng), base.dt)
         rotor = int(rng.choice(self.failed_rotors))
@@ -179,7 +181,7 @@ class RotorLossRecoveryEnv(gym.Env):
                 return False
         self._obs, self._info = obs, info
         self._end_time = info["time"] + self.horizon_seconds
-        self._episode = {"vehicle": base.params.name,
+        self._episode = {"vehicle": base.params.name, "task": base.task.name,
                          "failed_rotor": rotor, "onset_time": onset, "alarm_time": info["time"]}
         if self.expert:
             from ftcgym.agents import SpinRecoveryController
@@ -194,14 +196,14 @@ class RotorLossRecoveryEnv(gym.Env):
             command = self._expert_controller.act(self._obs, self._info)
             self._expert_action = 2.0 * np.asarray(command, dtype=np.float32) - 1.0
 
-    def _simulator(self, vehicle: str) -> gym.Env:
-        if vehicle not in self._envs:
+    def _simulator(self, vehicle: str, task: int) -> gym.Env:
+        if (vehicle, task) not in self._envs:
             from ftcgym.fdd import wrap_with_detector
-            env = gym.make("ftcgym/Quadrotor-v0", vehicle=vehicle, task=self.task, agent_hz=self.agent_hz,
+            env = gym.make("ftcgym/Quadrotor-v0", vehicle=vehicle, task=self.tasks[task], agent_hz=self.agent_hz,
                            sensors=self.sensors, max_episode_seconds=self.onset[1] + 2.0 + self.horizon_seconds,
                            faults=[{"kind": "rotor_loss", "target": 0, "time": self.onset[1]}])
-            self._envs[vehicle] = wrap_with_detector(DETECTOR, env.unwrapped, **self.detector_kwargs)
-        return self._envs[vehicle]
+            self._envs[vehicle, task] = wrap_with_detector(DETECTOR, env.unwrapped, **self.detector_kwargs)
+        return self._envs[vehicle, task]
 
     def _features(self) -> np.ndarray:
         return recovery_features(self._obs, self._info["fdd"][DETECTOR], self.env.unwrapped.params.omega_max)
@@ -244,6 +246,17 @@ def interval(value, name: str, positive: bool = False) -> tuple[float, float]:
         bound = "0 < lo <= hi" if positive else "0 <= lo <= hi"
         raise ValueError(f"{name}: expected a number or [lo, hi] with {bound}, got {value!r}")
     return low, high
+
+
+def _tasks(value) -> list:
+    """The tasks to draw from: one task (a name or a dict) or a non-empty list of them, each checked now."""
+    from ftcgym.envs.tasks import make_task
+    tasks = list(value) if isinstance(value, (list, tuple)) else [value]
+    if not tasks:
+        raise ValueError("task: expected a task or a non-empty list of tasks, got []")
+    for task in tasks:
+        make_task(task)          # raises ValueError naming the bad task or option
+    return tasks
 
 
 def _rotors(value) -> list[int]:
