@@ -73,6 +73,22 @@ def test_task_env_passes_checkers_and_starts_at_the_alarm():
     env.close()
 
 
+def test_task_env_draws_its_task_per_episode():
+    square = {"name": "square", "speed": 2.5}
+    env = RotorLossRecoveryEnv(task=["hover", square], **{**FAST_TASK, "onset": [3.0, 3.5]})
+    speeds = {}
+    for seed in range(8):
+        obs, info = env.reset(seed=seed)
+        base = env.env.unwrapped
+        speeds.setdefault(info["task"], []).append(float(np.linalg.norm(base.task.reference(info["time"]).velocity)))
+    assert set(speeds) == {"hover", "square"}                      # both drawn in 8 episodes
+    assert max(speeds["hover"]) == 0.0 and min(speeds["square"]) > 1.0   # at the alarm the square is under way
+    for bad in ([], ["hover", {"name": "sqaure"}], ["hover", {"name": "square", "speed": -1.0}]):
+        with pytest.raises(ValueError, match="task"):
+            RotorLossRecoveryEnv(task=bad)
+    env.close()
+
+
 def test_task_env_rewards_holding_altitude_and_ends_on_horizon_or_crash():
     env = RotorLossRecoveryEnv(failed_rotor=2, **FAST_TASK)
     obs, info = env.reset(seed=0)

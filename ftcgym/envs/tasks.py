@@ -128,7 +128,7 @@ def make_task(task) -> HoverTask | SquareTask | MissionTask:
     for key, value in options.items():
         if not isinstance(value, bool) and not (isinstance(value, (int, float)) and np.isfinite(value)):
             raise ValueError(f"task[{key!r}]: must be a finite number or a bool, got {value!r}")
-    for key in ("altitude", "side", "cruise_airspeed", "circuit_radius", "laps", "climb_rate", "descent_rate"):
+    for key in ("altitude", "side", "speed", "cruise_airspeed", "circuit_radius", "laps", "climb_rate", "descent_rate"):
         if options.get(key, 1.0) <= 0:
             raise ValueError(f"task[{key!r}]: must be > 0, got {options[key]!r}")
     return cls(**options)
