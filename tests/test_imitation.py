@@ -9,7 +9,7 @@ import ftcgym  # noqa: F401
 from ftcgym.cli import main
 from ftcgym.training.config import load_config
 from ftcgym.training.imitation import DaggerSettings
-from ftcgym.training.tasks import RotorLossRecoveryEnv
+from ftcgym.training.tasks import N_FEATURES, RotorLossRecoveryEnv
 
 pytest.importorskip("stable_baselines3")
 
@@ -92,7 +92,7 @@ def test_fine_tuning_starts_from_a_saved_model(tmp_path):
     config.hyperparams.update(n_steps=64, batch_size=64, n_epochs=1, learning_rate=1e-6)
     manifest = train(config, tmp_path / "tuned", progress=False, init_from=shipped)
     assert manifest["init_from"] == str(shipped) and "pretrain" not in manifest
-    features = np.random.default_rng(1).uniform(-1, 1, (16, 38)).astype(np.float32)
+    features = np.random.default_rng(1).uniform(-1, 1, (16, N_FEATURES)).astype(np.float32)
     actions = [PPO.load(folder / "model.zip").predict(load_normalizer(folder / "vecnormalize.pkl").normalize_obs(features),
                                                       deterministic=True)[0]
                for folder in (shipped, tmp_path / "tuned")]
