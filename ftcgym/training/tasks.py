@@ -97,10 +97,9 @@ def recovery_reward(info: dict, command: np.ndarray) -> float:
 class RotorLossRecoveryEnv(gym.Env):
     """`ftcgym/RotorLossRecovery-v0`; see the module docstring.
 
-    Keywords: vehicle, wind, onset, failed_rotor (randomisation, module docstring); horizon_seconds (post-
-    alarm episode length, default 5); action_repeat (simulator steps per action, default 2); task (the
-    quadrotor's task, default "hover", or a list of tasks drawn per episode); agent_hz (the quadrotor's control rate, default 500);
-    detector_kwargs (for `loe_kalman`); sensors (the quadrotor's sensor overrides); expert (add
+    Keywords: vehicle, wind, onset, failed_rotor, task (randomisation, module docstring; task default
+    "hover"); horizon_seconds (post-alarm episode length, default 5); action_repeat (simulator steps per
+    action, default 2); agent_hz (the quadrotor's control rate, default 500); detector_kwargs (for `loe_kalman`); sensors (the quadrotor's sensor overrides); expert (add
     `info["expert_action"]`, module docstring).
     """
 
