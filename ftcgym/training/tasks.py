@@ -99,8 +99,9 @@ class RotorLossRecoveryEnv(gym.Env):
 
     Keywords: vehicle, wind, onset, failed_rotor, task (randomisation, module docstring; task default
     "hover"); horizon_seconds (post-alarm episode length, default 5); action_repeat (simulator steps per
-    action, default 2); agent_hz (the quadrotor's control rate, default 500); detector_kwargs (for `loe_kalman`); sensors (the quadrotor's sensor overrides); expert (add
-    `info["expert_action"]`, module docstring).
+    action, default 2); agent_hz (the quadrotor's control rate, default 500); detector_kwargs (for
+    `loe_kalman`); sensors (the quadrotor's sensor overrides); expert (add `info["expert_action"]`, module
+    docstring).
     """
 
     metadata = {"render_modes": []}
