@@ -69,7 +69,8 @@ def test_task_env_passes_checkers_and_starts_at_the_alarm():
         np.testing.assert_array_equal(obs, again)                 # seeded reset is reproducible
         assert info["alarm_time"] >= info["onset_time"]           # the agent only sees post-alarm steps
         assert 0.02 < info["alarm_time"] - info["onset_time"] < 0.2
-        assert obs[-4:].tolist() == np.eye(4)[info["failed_rotor"]].tolist()  # one-hot of the isolated rotor
+        # one-hot of the isolated rotor, in the canonical order: a lost r3 / r4 reads as r1 / r2 (rotor_order)
+        assert obs[-4:].tolist() == np.eye(4)[info["failed_rotor"] % 2].tolist()
     env.close()
 
 

@@ -30,7 +30,7 @@ from ftcgym.agents.spin_recovery import thrust_axis_reference_for
 from ftcgym.geometry import rotation_matrix
 from ftcgym.training.saved import (MANIFEST_FILE, MODEL_FILE, NORMALIZER_FILE, SavedModelPolicy,  # noqa: F401
                                   load_normalizer, model_files)
-from ftcgym.training.tasks import DETECTOR, recovery_features, to_motor_command
+from ftcgym.training.tasks import DETECTOR, N_FEATURES, recovery_features, rotor_order, to_motor_command
 
 TASK_ENV_ID = "ftcgym/RotorLossRecovery-v0"
 
@@ -52,6 +52,11 @@ class LearnedPolicy(SavedModelPolicy):
         self.action_repeat = int((task_kwargs or {}).get("action_repeat", 2)) if env_id == TASK_ENV_ID else 1
         self.nominal = None
         if env_id == TASK_ENV_ID:
+            shape = tuple(model.observation_space.shape)
+            if shape != (N_FEATURES,):
+                raise ValueError(f"LearnedPolicy: the model takes {shape} observations; recovery_features gives "
+                                 f"({N_FEATURES},); a model of the earlier 38-feature layout must be retrained "
+                                 f"(`ftcgym train`)")
             from ftcgym.agents import make_policy
             if env is None:
                 raise ValueError("LearnedPolicy: a rotor-loss-recovery model needs the env (for its nominal controller)")
@@ -95,7 +100,8 @@ class LearnedPolicy(SavedModelPolicy):
         if self.axis_reference == "ftc-spin":
             self._shadow.act(obs, info)          # only to keep its reference current; never flown
         if self._steps % self.action_repeat == 0:
-            self._action = to_motor_command(self.predict(recovery_features(obs, status, self.omega_max)))
+            features = recovery_features(obs, status, self.omega_max)
+            self._action = to_motor_command(self.predict(features))[rotor_order(status)]
         self._steps += 1
         return self._action
 
