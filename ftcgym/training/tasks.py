@@ -56,8 +56,8 @@ CRASH_PENALTY = 100.0
 
 # The half turn about body z: rotor r1..r4 (000 eq. 4: front-left, front-right, back-right, back-left) goes to
 # r3, r4, r1, r2 and a body vector (or body rate) (x, y, z) to (-x, -y, z). The diagonal rotors sit at
-# opposite positions and spin the same way (VehicleParams.rotor_positions), so the turned vehicle is the same
-# vehicle: a loss of r3 or r4 is a loss of r1 or r2 seen half a turn round.
+# opposite positions and spin the same way (`rotor_positions` and YAW_SIGNS in envs/vehicles.py), so the
+# turned vehicle is the same vehicle: a loss of r3 or r4 is a loss of r1 or r2 seen half a turn round.
 HALF_TURN_ROTORS = np.array([2, 3, 0, 1])
 HALF_TURN_BODY = np.array([-1.0, -1.0, 1.0])
 
