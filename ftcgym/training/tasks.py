@@ -173,7 +173,7 @@ class RotorLossRecoveryEnv(gym.Env):
         action = np.asarray(action, dtype=np.float64)
         if action.shape != (4,) or not np.all(np.isfinite(action)):
             raise ValueError(f"action: must be 4 finite numbers, got {action!r}")
-        command = to_motor_command(action)[rotor_order(self._info["fdd"][DETECTOR])]
+        command = to_motor_command(action)[self._order]
         reward, info = 0.0, self._info
         for _ in range(self.action_repeat):
             self._obs, _, terminated, truncated, info = self.env.step(command)
@@ -214,6 +214,7 @@ class RotorLossRecoveryEnv(gym.Env):
                 return False
         self._obs, self._info = obs, info
         self._end_time = info["time"] + self.horizon_seconds
+        self._order = rotor_order(info["fdd"][DETECTOR])     # the alarm is latched: fixed for the episode
         self._episode = {"vehicle": base.params.name, "task": base.task.name,
                          "failed_rotor": rotor, "onset_time": onset, "alarm_time": info["time"]}
         if self.expert:
@@ -227,8 +228,7 @@ class RotorLossRecoveryEnv(gym.Env):
         """The shadow expert's command for the current observation (it must see every simulator step)."""
         if self._expert_controller is not None:
             command = self._expert_controller.act(self._obs, self._info)
-            order = rotor_order(self._info["fdd"][DETECTOR])
-            self._expert_action = (2.0 * np.asarray(command, dtype=np.float32) - 1.0)[order]
+            self._expert_action = (2.0 * np.asarray(command, dtype=np.float32) - 1.0)[self._order]
 
     def _simulator(self, vehicle: str, task: int) -> gym.Env:
         if (vehicle, task) not in self._envs:
