@@ -11,7 +11,11 @@ Z_deriv = 25 m/s^2, T_deriv = 0.12 s, both on the residual low-passed at 5 Hz. T
 cutoff; the filter is taken as the same 2nd-order Butterworth as the EKF prefilter (Sec. 5). The detector runs
 at the EKF rate (f_EKF = 25 Hz, Sec. 7.1), so "for T" means ceil(f_EKF T) consecutive samples, the
 sequence length of eq. (40) (p_seq = p_single^(f_EKF T)): 7 samples for the norm, 3 for the derivative.
-The derivative is the backward difference of the filtered residual times f_EKF.
+The derivative is the backward difference of the filtered residual times f_EKF. The thesis author's public
+MATLAB detector (github.com/frlarocque/airspeed_kalman_filter, kalman_filter_based/residual_fault_detector.m)
+counts the same way (a fault once more than T/dt consecutive samples exceed the threshold: 7 and 3 at 25 Hz),
+with the same 2nd-order Butterworth and backward difference; so the floor of the incipient delay (a -2.5 m/s^2
+ramp reaches 5.5 m/s at 2.2 s, plus the filter's lag, the sample phase and the hold: ~2.50 s) is 001's too.
 """
 from __future__ import annotations
 
