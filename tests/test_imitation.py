@@ -46,6 +46,19 @@ def test_dagger_settings_reject_unknown_keys():
         DaggerSettings.from_config({"iterations": 2, "epoch": 3})
     with pytest.raises(ValueError, match="method"):
         DaggerSettings.from_config({"method": "bc"})
+    with pytest.raises(ValueError, match="pretrain.loss"):
+        DaggerSettings.from_config({"loss": "huber"})
+
+
+def test_saturated_loss_ignores_a_mean_beyond_the_bound_its_label_sits_at():
+    torch = pytest.importorskip("torch")
+    from ftcgym.training.imitation import _action_loss
+    labels = torch.tensor([[1.0, -1.0, 0.3, 1.0]])
+    mean = torch.tensor([[1.5, -3.0, 0.5, 0.5]])
+    bound = torch.ones(4)
+    # beyond +1 and -1 at saturated labels: no error; interior 0.2; short of the bound 0.5
+    assert float(_action_loss(mean, labels, "saturated", bound)) == pytest.approx((0.2 ** 2 + 0.5 ** 2) / 4)
+    assert float(_action_loss(mean, labels, "mse", bound)) == pytest.approx((0.25 + 4.0 + 0.04 + 0.25) / 4)
 
 
 def test_dagger_pretraining_imitates_the_expert(tmp_path):

@@ -11,7 +11,10 @@ Per iteration i: fly the vectorised task env with the mixture pi_i = beta_i expe
 (chosen per step; the learner's action plus Gaussian noise of `noise`, as DART, Laskey et al. CoRL 2017,
 so the data covers the states the learner's errors lead to), add every (observation, expert action) pair
 to the data set, update the observation normalisation with the new observations and fit the policy's mean
-action to the expert's by mean squared error over the whole set. The value head is then fitted to the
+action to the expert's by mean squared error over the whole set. With `loss: saturated` a label at a bound
+of the action space only penalises a mean short of that bound: the flown action is clipped, so any mean beyond
+it flies the same, and the network may represent the expert's idle/full switching as a smooth function
+crossing the bound instead of fitting a kink (a third of the spin recovery's labels sit at a bound). The value head is then fitted to the
 discounted returns of the last iteration's episodes (flown mostly by the learner), so the RL fine-tuning
 does not start from an untrained critic.
 """
@@ -22,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 EXPERT_KEY = "expert_action"
+LOSSES = ("mse", "saturated")
 
 
 @dataclass
@@ -38,6 +42,7 @@ class DaggerSettings:
     learning_rate: float = 1e-3
     log_std: float | None = -2.0          # the Gaussian policy's log std after pre-training (RL exploration)
     value_epochs: int = 10
+    loss: str = "mse"                     # "mse", or "saturated": no penalty beyond a bound the label sits at
 
     @classmethod
     def from_config(cls, section: dict) -> "DaggerSettings":
@@ -50,6 +55,8 @@ class DaggerSettings:
         settings = cls(**{k: v for k, v in section.items() if k != "method"})
         if settings.iterations < 1 or settings.steps_per_iteration < 1 or not 0 <= settings.beta <= 1:
             raise ValueError(f"pretrain: need iterations >= 1, steps_per_iteration >= 1, 0 <= beta <= 1; got {section}")
+        if settings.loss not in LOSSES:
+            raise ValueError(f"pretrain.loss: {settings.loss!r}; accepted: {list(LOSSES)}")
         return settings
 
 
@@ -151,23 +158,37 @@ def _batches(size: int, batch_size: int, epochs: int, rng):
 
 
 def _fit_actor(model, optimizer, observations, labels, settings: DaggerSettings, rng) -> float:
-    """Fit the policy's mean action to the labels (MSE); the last epoch's mean loss."""
+    """Fit the policy's mean action to the labels (`settings.loss`); the last epoch's mean loss."""
     import torch
     policy = model.policy
     obs_t = torch.as_tensor(observations, dtype=torch.float32)
     labels_t = torch.as_tensor(labels, dtype=torch.float32)
+    low, high = model.action_space.low, model.action_space.high
+    if settings.loss == "saturated" and not np.allclose(low, -high):
+        raise ValueError(f"pretrain.loss 'saturated' needs a symmetric action space; got low {low}, high {high}")
+    bound = torch.as_tensor(high, dtype=torch.float32)
     policy.set_training_mode(True)
     losses = []
     batches_per_epoch = -(-len(observations) // settings.batch_size)
     for batch in _batches(len(observations), settings.batch_size, settings.epochs, rng):
         mean = _mean_action(policy, obs_t[batch])
-        loss = torch.nn.functional.mse_loss(mean, labels_t[batch])
+        loss = _action_loss(mean, labels_t[batch], settings.loss, bound)
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
         losses.append(float(loss.detach()))
     policy.set_training_mode(False)
     return float(np.mean(losses[-batches_per_epoch:]))
+
+
+def _action_loss(mean, labels, kind: str, bound):
+    """Mean squared error; "saturated": a label at +-bound (symmetric Box) leaves a mean beyond it unpenalised."""
+    import torch
+    error = mean - labels
+    if kind == "saturated":
+        error = torch.where(labels >= bound, torch.clamp(error, max=0.0), error)
+        error = torch.where(labels <= -bound, torch.clamp(error, min=0.0), error)
+    return torch.mean(error * error)
 
 
 def _fit_value(model, optimizer, observations, targets, settings: DaggerSettings, rng) -> None:
