@@ -12,11 +12,11 @@ Per iteration i: fly the vectorised task env with the mixture pi_i = beta_i expe
 so the data covers the states the learner's errors lead to), add every (observation, expert action) pair
 to the data set, update the observation normalisation with the new observations and fit the policy's mean
 action to the expert's by mean squared error over the whole set. With `loss: saturated` a label at a bound
-of the action space only penalises a mean short of that bound: the flown action is clipped, so any mean beyond
-it flies the same, and the network may represent the expert's idle/full switching as a smooth function
-crossing the bound instead of fitting a kink (a third of the spin recovery's labels sit at a bound). The value head is then fitted to the
-discounted returns of the last iteration's episodes (flown mostly by the learner), so the RL fine-tuning
-does not start from an untrained critic.
+of the action space only penalises a mean short of that bound: the flown action is clipped, so any mean
+beyond it flies the same, and the network may represent the expert's idle/full switching as a smooth
+function crossing the bound instead of fitting a kink (a third of the spin recovery's labels sit at a
+bound). The value head is then fitted to the discounted returns of the last iteration's episodes (flown
+mostly by the learner), so the RL fine-tuning does not start from an untrained critic.
 """
 from __future__ import annotations
 
@@ -69,6 +69,9 @@ def dagger(model, venv, settings: DaggerSettings, normalizer=None, seed: int = 0
     """
     import torch
 
+    low, high = model.action_space.low, model.action_space.high
+    if settings.loss == "saturated" and not np.allclose(low, -high):
+        raise ValueError(f"pretrain.loss 'saturated' needs a symmetric action space; got low {low}, high {high}")
     raw = venv
     rng = np.random.default_rng(seed)
     optimizer = torch.optim.Adam(model.policy.parameters(), lr=settings.learning_rate)
@@ -163,10 +166,7 @@ def _fit_actor(model, optimizer, observations, labels, settings: DaggerSettings,
     policy = model.policy
     obs_t = torch.as_tensor(observations, dtype=torch.float32)
     labels_t = torch.as_tensor(labels, dtype=torch.float32)
-    low, high = model.action_space.low, model.action_space.high
-    if settings.loss == "saturated" and not np.allclose(low, -high):
-        raise ValueError(f"pretrain.loss 'saturated' needs a symmetric action space; got low {low}, high {high}")
-    bound = torch.as_tensor(high, dtype=torch.float32)
+    bound = torch.as_tensor(model.action_space.high, dtype=torch.float32)
     policy.set_training_mode(True)
     losses = []
     batches_per_epoch = -(-len(observations) // settings.batch_size)
