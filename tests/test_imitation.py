@@ -48,6 +48,8 @@ def test_dagger_settings_reject_unknown_keys():
         DaggerSettings.from_config({"method": "bc"})
     with pytest.raises(ValueError, match="pretrain.loss"):
         DaggerSettings.from_config({"loss": "huber"})
+    with pytest.raises(ValueError, match="final_epochs >= 0"):
+        DaggerSettings.from_config({"final_epochs": -1})
 
 
 def test_saturated_loss_ignores_a_mean_beyond_the_bound_its_label_sits_at():
@@ -66,7 +68,7 @@ def test_dagger_pretraining_imitates_the_expert(tmp_path):
     body = document["rotor-loss-recovery"]
     body["env_kwargs"].update(FAST_TASK)
     body["eval"] = None
-    body["pretrain"].update(iterations=2, steps_per_iteration=1000, epochs=20)
+    body["pretrain"].update(iterations=2, steps_per_iteration=1000, epochs=20, final_epochs=10)
     body["PPO"].update(n_envs=1, policy_kwargs={"net_arch": [64, 64]})
     path = tmp_path / "dagger.yaml"
     path.write_text(yaml.safe_dump(document))
@@ -76,6 +78,8 @@ def test_dagger_pretraining_imitates_the_expert(tmp_path):
     assert (out / "pretrained" / "model.zip").is_file() and (out / "pretrained" / "vecnormalize.pkl").is_file()
     assert manifest["steps"] == 0 and [i["iteration"] for i in manifest["pretrain"]["iterations"]] == [0, 1]
     assert manifest["pretrain"]["iterations"][0]["beta"] == 1.0
+    last = manifest["pretrain"]["iterations"][-1]   # the annealed final fit lowers the training loss further
+    assert last["final_fit"]["epochs"] == 10 and last["final_fit"]["action_mse"] < last["action_mse"]
 
     from stable_baselines3 import PPO
 

@@ -15,7 +15,8 @@ action to the expert's by mean squared error over the whole set. With `loss: sat
 of the action space only penalises a mean short of that bound: the flown action is clipped, so any mean
 beyond it flies the same, and the network may represent the expert's idle/full switching as a smooth
 function crossing the bound instead of fitting a kink (a third of the spin recovery's labels sit at a
-bound). The value head is then fitted to the discounted returns of the last iteration's episodes (flown
+bound). With `final_epochs`, the whole data set is then fitted that many more passes with the learning rate
+annealed to zero (cosine): the iterations' constant rate leaves the fit noisy. The value head is then fitted to the discounted returns of the last iteration's episodes (flown
 mostly by the learner), so the RL fine-tuning does not start from an untrained critic.
 """
 from __future__ import annotations
@@ -43,6 +44,7 @@ class DaggerSettings:
     log_std: float | None = -2.0          # the Gaussian policy's log std after pre-training (RL exploration)
     value_epochs: int = 10
     loss: str = "mse"                     # "mse", or "saturated": no penalty beyond a bound the label sits at
+    final_epochs: int = 0                 # after the last iteration: passes over the whole set, rate annealed to 0
 
     @classmethod
     def from_config(cls, section: dict) -> "DaggerSettings":
@@ -53,8 +55,10 @@ class DaggerSettings:
         if section.get("method", "dagger") != "dagger":
             raise ValueError(f"pretrain.method: {section['method']!r}; accepted: ['dagger']")
         settings = cls(**{k: v for k, v in section.items() if k != "method"})
-        if settings.iterations < 1 or settings.steps_per_iteration < 1 or not 0 <= settings.beta <= 1:
-            raise ValueError(f"pretrain: need iterations >= 1, steps_per_iteration >= 1, 0 <= beta <= 1; got {section}")
+        if (settings.iterations < 1 or settings.steps_per_iteration < 1 or not 0 <= settings.beta <= 1
+                or settings.final_epochs < 0):
+            raise ValueError(f"pretrain: need iterations >= 1, steps_per_iteration >= 1, 0 <= beta <= 1, "
+                             f"final_epochs >= 0; got {section}")
         if settings.loss not in LOSSES:
             raise ValueError(f"pretrain.loss: {settings.loss!r}; accepted: {list(LOSSES)}")
         return settings
@@ -93,6 +97,11 @@ def dagger(model, venv, settings: DaggerSettings, normalizer=None, seed: int = 0
         log(f"dagger {iteration}: beta {beta:.3f}, {stats['samples']} samples, action mse {loss:.4f}, "
             f"{stats['episodes']} episodes flown, crash rate {stats['crash_rate']:.2f}")
         beta *= settings.beta_decay
+    if settings.final_epochs:
+        loss = _fit_actor(model, optimizer, _normalized(normalizer, np.concatenate(observations)),
+                          np.concatenate(labels), settings, rng, epochs=settings.final_epochs, anneal=True)
+        history[-1]["final_fit"] = {"epochs": settings.final_epochs, "action_mse": loss}
+        log(f"dagger final fit: {settings.final_epochs} epochs, learning rate annealed, action mse {loss:.4f}")
     _fit_value(model, optimizer, _normalized(normalizer, flown["value_observations"]), flown["value_targets"],
                settings, rng)
     if settings.log_std is not None and hasattr(model.policy, "log_std"):
@@ -160,24 +169,33 @@ def _batches(size: int, batch_size: int, epochs: int, rng):
             yield order[start:start + batch_size]
 
 
-def _fit_actor(model, optimizer, observations, labels, settings: DaggerSettings, rng) -> float:
-    """Fit the policy's mean action to the labels (`settings.loss`); the last epoch's mean loss."""
+def _fit_actor(model, optimizer, observations, labels, settings: DaggerSettings, rng, epochs: int | None = None,
+               anneal: bool = False) -> float:
+    """Fit the policy's mean action to the labels (`settings.loss`) for `epochs` (default `settings.epochs`),
+    with `anneal` the learning rate cosine-annealed to 0 over them (then restored); the last epoch's mean loss."""
     import torch
     policy = model.policy
+    epochs = settings.epochs if epochs is None else epochs
     obs_t = torch.as_tensor(observations, dtype=torch.float32)
     labels_t = torch.as_tensor(labels, dtype=torch.float32)
     bound = torch.as_tensor(model.action_space.high, dtype=torch.float32)
     policy.set_training_mode(True)
     losses = []
     batches_per_epoch = -(-len(observations) // settings.batch_size)
-    for batch in _batches(len(observations), settings.batch_size, settings.epochs, rng):
+    schedule = (torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=epochs * batches_per_epoch)
+                if anneal else None)
+    for batch in _batches(len(observations), settings.batch_size, epochs, rng):
         mean = _mean_action(policy, obs_t[batch])
         loss = _action_loss(mean, labels_t[batch], settings.loss, bound)
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
+        if schedule is not None:
+            schedule.step()
         losses.append(float(loss.detach()))
     policy.set_training_mode(False)
+    for group in optimizer.param_groups:
+        group["lr"] = settings.learning_rate
     return float(np.mean(losses[-batches_per_epoch:]))
 
 
