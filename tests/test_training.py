@@ -28,7 +28,7 @@ def _config(tmp_path, n_envs=1, steps=1024):
     body["checkpoint_freq"] = 512
     body["eval"] = {"scenario": "quad-rotor-loss-hover", "episodes": 1, "freq": 512, "env_kwargs": SHORT_EVAL}
     body["PPO"].update(n_envs=n_envs, n_timesteps=steps, n_steps=256, batch_size=64, n_epochs=2,
-                       policy_kwargs={"net_arch": [32, 32]})
+                       policy_kwargs={"net_arch": [32, 32], "activation_fn": "relu"})
     path = tmp_path / "fast.yaml"
     path.write_text(yaml.safe_dump(document))
     return path
@@ -53,6 +53,15 @@ def test_builtin_config_and_overrides():
     assert "buffer_size" in sac.hyperparams and "n_steps" not in sac.hyperparams
     with pytest.raises(ValueError, match="built-in"):
         load_config("no-such-task")
+
+
+def test_config_names_the_activation_and_rejects_an_unknown_one(tmp_path):
+    document = yaml.safe_load(open(load_config("rotor-loss-recovery").source))
+    document["rotor-loss-recovery"]["PPO"]["policy_kwargs"]["activation_fn"] = "sigmoidish"
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(document))
+    with pytest.raises(ValueError, match=r"policy_kwargs.activation_fn: 'sigmoidish'; accepted: \['tanh', 'relu'"):
+        load_config(str(path))
 
 
 def test_task_env_passes_checkers_and_starts_at_the_alarm():
@@ -115,6 +124,9 @@ def test_train_writes_model_statistics_checkpoints_evaluations_and_manifest(trai
     assert (manifest["seed"], manifest["algo"], manifest["n_envs"]) == (3, "PPO", 1)
     assert manifest["command"].startswith("ftcgym train --config") and manifest["wall_time_s"] > 0
     assert manifest["config"]["env_kwargs"]["horizon_seconds"] == 1.0
+    assert manifest["config"]["policy_kwargs"]["activation_fn"] == "relu"   # named in the config, a class in torch
+    from stable_baselines3 import PPO
+    assert type(PPO.load(trained / "model.zip").policy.mlp_extractor.policy_net[1]).__name__ == "ReLU"
     assert manifest["git_commit"] is None or len(manifest["git_commit"]) >= 40
     assert manifest["ftcgym_version"]
     from ftcgym.training.policy import load_normalizer

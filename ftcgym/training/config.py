@@ -14,7 +14,7 @@
         n_timesteps: !!float 3e6
         policy: MlpPolicy
         normalize: {norm_obs: true, norm_reward: true}   # VecNormalize keywords; false: none
-        policy_kwargs: {net_arch: [128, 128]}
+        policy_kwargs: {net_arch: [128, 128], activation_fn: relu}   # activation by name (ACTIVATIONS)
         n_steps: 1024                       # every other key goes to the algorithm's constructor
       SAC: {...}
 
@@ -31,6 +31,8 @@ import yaml
 CONFIG_DIR = Path(__file__).with_name("configs")
 ALGOS = ("PPO", "SAC")
 SECTION_KEYS = ("n_envs", "n_timesteps", "policy", "normalize", "policy_kwargs")
+#: `policy_kwargs.activation_fn` by name (RL Zoo writes the class, `nn.ReLU`; YAML keeps to plain data).
+ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "LeakyReLU", "silu": "SiLU"}
 
 
 @dataclass
@@ -107,6 +109,9 @@ def load_config(name_or_path: str, algo: str | None = None, n_envs: int | None =
     section.pop("n_envs", None)
     section.pop("n_timesteps", None)
     config.hyperparams = section
+    activation = config.policy_kwargs.get("activation_fn", "tanh")
+    if activation not in ACTIVATIONS:
+        raise ValueError(f"policy_kwargs.activation_fn: {activation!r}; accepted: {list(ACTIVATIONS)}")
     least = 0 if config.pretrain else 1      # a pre-trained policy may ship without RL fine-tuning
     if config.n_envs < 1 or config.total_steps < least:
         raise ValueError(f"n_envs must be >= 1 and total steps >= {least}, got {config.n_envs} and {config.total_steps}")

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import gymnasium as gym
 
-from ftcgym.training.config import TrainConfig
+from ftcgym.training.config import ACTIVATIONS, TrainConfig
 from ftcgym.training.policy import MANIFEST_FILE, MODEL_FILE, NORMALIZER_FILE
 
 
@@ -89,7 +89,7 @@ def train(config: TrainConfig, out: str | Path, progress: bool = True, command: 
     if not tensorboard:
         print("ftcgym train: tensorboard is not installed; no TensorBoard logs (pip install tensorboard)")
     model = algorithm_class(config.algo)(
-        config.policy, venv, seed=config.seed, policy_kwargs=config.policy_kwargs or None, device="cpu",
+        config.policy, venv, seed=config.seed, policy_kwargs=policy_kwargs(config) or None, device="cpu",
         verbose=verbose, **config.hyperparams)
     # Our own logger: training curves always land in OUT/logs/progress.csv (and OUT/tb with tensorboard);
     # SB3's default would open an empty SB3-<date> folder in /tmp for every run.
@@ -128,6 +128,16 @@ def train(config: TrainConfig, out: str | Path, progress: bool = True, command: 
         manifest["pretrain"] = {"wall_time_s": pretrain_time, "iterations": pretraining}
     (out / MANIFEST_FILE).write_text(json.dumps(manifest, indent=2) + "\n")
     return manifest
+
+
+def policy_kwargs(config: TrainConfig) -> dict:
+    """The config's policy_kwargs for SB3, `activation_fn` turned from its name into the torch class."""
+    import torch
+
+    kwargs = dict(config.policy_kwargs)
+    if "activation_fn" in kwargs:
+        kwargs["activation_fn"] = getattr(torch.nn, ACTIVATIONS[kwargs["activation_fn"]])
+    return kwargs
 
 
 def _initialise(model, venv, path, config: TrainConfig) -> None:
