@@ -326,8 +326,10 @@ def _run_train(args, argv: list[str]) -> int:
                      init_from=args.init_from)
     if "pretrain" in manifest:
         last = manifest["pretrain"]["iterations"][-1]
+        final = f", final fit action mse {last['final_fit']['action_mse']:.4f}" if "final_fit" in last else ""
         print(f"imitation pre-training: {len(manifest['pretrain']['iterations'])} DAgger iterations, "
-              f"{last['samples']} samples in {manifest['pretrain']['wall_time_s']:.1f} s")
+              f"{last['samples']} samples in {manifest['pretrain']['wall_time_s']:.1f} s, "
+              f"action mse {last['action_mse']:.4f}{final}")
     print(f"{manifest['steps']} steps in {manifest['wall_time_s']:.1f} s ({manifest['steps_per_s'] or 0:.0f} steps/s, "
           f"{config.n_envs} envs); wrote model.zip, manifest.json to {out}")
     return 0

@@ -86,7 +86,7 @@ def test_annealed_fit_ends_below_a_constant_rate_and_restores_the_rate():
     env.close()
 
 
-def test_dagger_pretraining_imitates_the_expert(tmp_path):
+def test_dagger_pretraining_imitates_the_expert(tmp_path, capsys):
     document = yaml.safe_load(open(load_config("rotor-loss-recovery").source))
     body = document["rotor-loss-recovery"]
     body["env_kwargs"].update(FAST_TASK)
@@ -103,6 +103,9 @@ def test_dagger_pretraining_imitates_the_expert(tmp_path):
     assert manifest["pretrain"]["iterations"][0]["beta"] == 1.0
     last = manifest["pretrain"]["iterations"][-1]   # the annealed final fit lowers the training loss further
     assert last["final_fit"]["epochs"] == 10 and last["final_fit"]["action_mse"] < last["action_mse"]
+    printed = capsys.readouterr().out
+    assert (f"2 DAgger iterations, 2000 samples" in printed and f"action mse {last['action_mse']:.4f}, final fit "
+            f"action mse {last['final_fit']['action_mse']:.4f}" in printed)
 
     from stable_baselines3 import PPO
 
