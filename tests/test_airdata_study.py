@@ -15,16 +15,20 @@ def status(**alarms):
 def test_score_delays_false_alarms_and_error_after_detection():
     t = np.arange(0, 60, 0.01)
     true = np.full_like(t, 18.0)
-    ekf = true + np.where((t >= 45.0) & (t < 45.2), 3.0, 0.0) + np.where(t >= 45.2, 1.0, 0.0)
+    ekf = (true + np.where((t >= 45.0) & (t < 45.2), 3.0, 0.0) + np.where(t >= 45.2, 1.0, 0.0)
+           - np.where((t >= 40.0) & (t < 45.0), 0.4, 0.0))
     samples = np.column_stack([t, ekf, true, np.full_like(t, np.radians(90)), np.full_like(t, 30.0)])
     info = {"fdd": {"airdata_ekf": status(gnss=45.1, cusum=30.0)}, "fault": {"kind": "gnss"}, "crashed": False}
     out = study._score(samples, info, 45.0)
     assert out["delay_gnss"] == pytest.approx(0.1) and out["false_alarm_cusum"] and out["delay_cusum"] is None
     assert out["airspeed_error_max_onset_to_detection"] == pytest.approx(3.0)
     assert out["airspeed_error_max_after_detection"] == pytest.approx(3.0)          # 45.1-45.2 still 3 m/s
-    assert out["airspeed_rmse_before_onset"] == pytest.approx(0.0)
-    s = study.summary([out, {**out, "delay_gnss": 0.3}])
+    # monitored from 1 s: 0.4 m/s low over the last 5 of 44 s; the bias averages the 10 s before onset
+    assert out["airspeed_rmse_before_onset"] == pytest.approx(0.4 * np.sqrt(5 / 44), rel=1e-3)
+    assert out["airspeed_bias_before_onset"] == pytest.approx(-0.2, rel=1e-3)
+    s = study.summary([out, {**out, "delay_gnss": 0.3, "airspeed_bias_before_onset": 0.1}])
     assert s["gnss"]["delay_median"] == pytest.approx(0.2) and s["cusum"]["false_alarms"] == 2
+    assert s["airspeed_bias_before_onset_mean"] == pytest.approx(-0.05)
 
 
 def test_threshold_table_one_sided_and_round_trip(tmp_path):

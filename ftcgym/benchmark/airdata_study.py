@@ -29,6 +29,7 @@ from ftcgym.fdd.pitot_detection import CUSUM_DEFAULT, TABLE_2_DERIVATIVE, TABLE_
 
 DETECTOR = "airdata_ekf"
 FORWARD_SKEW = math.radians(80.0)       # 001 Table 5: forward flight above 80 deg skew
+BIAS_WINDOW = 10.0                       # s before onset over which the signed EKF airspeed error is averaged
 ALARMS = ("table2", "cusum", "gnss", "pusher_rpm")
 
 
@@ -94,6 +95,10 @@ def _score(samples: np.ndarray, info: dict, onset) -> dict:
     monitored = airborne & (time >= (status["start_time"] or math.inf))
     before = monitored & (time < (onset if onset is not None else math.inf))
     out["airspeed_rmse_before_onset"] = _rms(error[before])
+    if onset is not None:
+        # signed: an EKF reading low by b raises r = pitot - EKF by b, so a falling pitot crosses -Z_norm b / rate later
+        recent = before & (time >= onset - BIAS_WINDOW)
+        out["airspeed_bias_before_onset"] = float(np.mean(ekf[recent] - true[recent])) if recent.any() else None
     sensor_alarm = min([t for t in (alarms["gnss"], alarms["pusher_rpm"]) if t is not None], default=None)
     if sensor_alarm is not None:
         after = monitored & (time >= sensor_alarm)
@@ -140,7 +145,8 @@ def _fly_job(scenario, policy_name: str, seed: int, env_overrides, record: bool 
 
 
 def summary(results: list[dict]) -> dict:
-    """Median / max delays, detections and false alarms per criterion, flight hours."""
+    """Median / max delays, detections and false alarms per criterion, flight hours, the EKF's mean signed airspeed
+    error over the 10 s before onset."""
     out = {"episodes": len(results), "flight_hours": sum(r["airborne_time"] for r in results) / 3600.0,
            "crashes": sum(r["crashed"] for r in results),
            "pusher_rpm_unconfirmed": sum(r.get("pusher_rpm_unconfirmed") is not None for r in results)}
@@ -155,6 +161,8 @@ def summary(results: list[dict]) -> dict:
     forward = [r.get("airspeed_error_max_after_detection_forward") for r in results]
     forward = [e for e in forward if e is not None]
     out["airspeed_error_max_after_detection_forward"] = max(forward) if forward else None
+    biases = [r["airspeed_bias_before_onset"] for r in results if r.get("airspeed_bias_before_onset") is not None]
+    out["airspeed_bias_before_onset_mean"] = float(np.mean(biases)) if biases else None
     return out
 
 
