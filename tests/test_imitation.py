@@ -50,23 +50,6 @@ def test_dagger_settings_reject_unknown_keys():
         DaggerSettings.from_config({"loss": "huber"})
     with pytest.raises(ValueError, match="final_epochs >= 0"):
         DaggerSettings.from_config({"final_epochs": -1})
-    for bad in ({"features": [3, 3], "scale": 1.0}, {"features": [0, 2]}, {"features": [0, 2], "scale": -1}):
-        with pytest.raises(ValueError, match="pretrain.emphasis"):
-            DaggerSettings.from_config({"emphasis": bad})
-
-
-def test_emphasis_weights_grow_with_the_named_features_and_keep_the_loss_scale():
-    torch = pytest.importorskip("torch")
-    from ftcgym.training.imitation import _action_loss, sample_weights
-    observations = np.array([[0.0, 0.0, 5.0], [3.0, 4.0, 0.0]])
-    weights = sample_weights(observations, {"features": [0, 2], "scale": 0.5})   # 1 and 1 + 0.5 * 25
-    assert weights == pytest.approx(np.array([1.0, 13.5]) / 7.25) and weights.mean() == pytest.approx(1.0)
-    assert np.array_equal(sample_weights(observations, None), np.ones(2))
-    with pytest.raises(ValueError, match="exceeds the 3 observation entries"):
-        sample_weights(observations, {"features": [2, 4], "scale": 1.0})
-    labels, mean = torch.zeros(2, 1), torch.tensor([[1.0], [2.0]])
-    w = torch.as_tensor(weights, dtype=torch.float32)
-    assert float(_action_loss(mean, labels, "mse", torch.ones(1), w)) == pytest.approx((w[0] + 4 * w[1]) / 2)
 
 
 def test_saturated_loss_ignores_a_mean_beyond_the_bound_its_label_sits_at():

@@ -47,7 +47,6 @@ class DaggerSettings:
     value_epochs: int = 10
     loss: str = "mse"                     # "mse", or "saturated": no penalty beyond a bound the label sits at
     final_epochs: int = 0                 # after the last iteration: passes over the whole set, rate annealed to 0
-    emphasis: dict | None = None          # {features: [start, stop], scale: s}: sample weight 1 + s |obs[start:stop]|^2
 
     @classmethod
     def from_config(cls, section: dict) -> "DaggerSettings":
@@ -64,33 +63,7 @@ class DaggerSettings:
                              f"final_epochs >= 0; got {section}")
         if settings.loss not in LOSSES:
             raise ValueError(f"pretrain.loss: {settings.loss!r}; accepted: {list(LOSSES)}")
-        _check_emphasis(settings.emphasis)
         return settings
-
-
-def _check_emphasis(emphasis) -> None:
-    if emphasis is None:
-        return
-    ok = (isinstance(emphasis, dict) and set(emphasis) == {"features", "scale"}
-          and isinstance(emphasis["features"], (list, tuple)) and len(emphasis["features"]) == 2
-          and all(isinstance(i, int) for i in emphasis["features"]) and 0 <= emphasis["features"][0]
-          < emphasis["features"][1] and isinstance(emphasis["scale"], (int, float)) and emphasis["scale"] >= 0)
-    if not ok:
-        raise ValueError(f"pretrain.emphasis: {emphasis!r}; accepted: {{features: [start, stop], scale: s}} with "
-                         f"0 <= start < stop and s >= 0")
-
-
-def sample_weights(observations: np.ndarray, emphasis: dict | None) -> np.ndarray:
-    """1 + scale |obs[:, start:stop]|^2 on the raw (unnormalised) observations, divided by its mean (so the
-    loss keeps its scale); ones without `emphasis`."""
-    if emphasis is None:
-        return np.ones(len(observations))
-    start, stop = emphasis["features"]
-    if stop > observations.shape[1]:
-        raise ValueError(f"pretrain.emphasis.features: [{start}, {stop}] exceeds the {observations.shape[1]} "
-                         f"observation entries")
-    weights = 1.0 + emphasis["scale"] * np.sum(np.square(observations[:, start:stop]), axis=1)
-    return weights / weights.mean()
 
 
 def dagger(model, venv, settings: DaggerSettings, normalizer=None, seed: int = 0, log=print) -> list[dict]:
@@ -116,9 +89,8 @@ def dagger(model, venv, settings: DaggerSettings, normalizer=None, seed: int = 0
         labels.append(flown["labels"])
         if normalizer is not None:
             normalizer.obs_rms.update(flown["observations"])
-        data = np.concatenate(observations)
-        loss = _fit_actor(model, optimizer, _normalized(normalizer, data), np.concatenate(labels), settings, rng,
-                          weights=sample_weights(data, settings.emphasis))
+        loss = _fit_actor(model, optimizer, _normalized(normalizer, np.concatenate(observations)),
+                          np.concatenate(labels), settings, rng)
         stats = {"iteration": iteration, "beta": beta, "samples": int(sum(len(o) for o in observations)),
                  "action_mse": loss, "episodes": len(flown["returns"]),
                  "crash_rate": flown["crashes"] / max(len(flown["returns"]), 1),
@@ -128,8 +100,8 @@ def dagger(model, venv, settings: DaggerSettings, normalizer=None, seed: int = 0
             f"{stats['episodes']} episodes flown, crash rate {stats['crash_rate']:.2f}")
         beta *= settings.beta_decay
     if settings.final_epochs:
-        loss = _fit_actor(model, optimizer, _normalized(normalizer, data), np.concatenate(labels), settings, rng,
-                          epochs=settings.final_epochs, anneal=True, weights=sample_weights(data, settings.emphasis))
+        loss = _fit_actor(model, optimizer, _normalized(normalizer, np.concatenate(observations)),
+                          np.concatenate(labels), settings, rng, epochs=settings.final_epochs, anneal=True)
         history[-1]["final_fit"] = {"epochs": settings.final_epochs, "action_mse": loss}
         log(f"dagger final fit: {settings.final_epochs} epochs, learning rate annealed, action mse {loss:.4f}")
     _fit_value(model, optimizer, _normalized(normalizer, flown["value_observations"]), flown["value_targets"],
@@ -200,16 +172,14 @@ def _batches(size: int, batch_size: int, epochs: int, rng):
 
 
 def _fit_actor(model, optimizer, observations, labels, settings: DaggerSettings, rng, epochs: int | None = None,
-               anneal: bool = False, weights: np.ndarray | None = None) -> float:
-    """Fit the policy's mean action to the labels (`settings.loss`, per-sample `weights`) for `epochs` (default
-    `settings.epochs`), with `anneal` the learning rate cosine-annealed to 0 over them (then restored); the
-    last epoch's mean (weighted) loss."""
+               anneal: bool = False) -> float:
+    """Fit the policy's mean action to the labels (`settings.loss`) for `epochs` (default `settings.epochs`),
+    with `anneal` the learning rate cosine-annealed to 0 over them (then restored); the last epoch's mean loss."""
     import torch
     policy = model.policy
     epochs = settings.epochs if epochs is None else epochs
     obs_t = torch.as_tensor(observations, dtype=torch.float32)
     labels_t = torch.as_tensor(labels, dtype=torch.float32)
-    weights_t = torch.as_tensor(np.ones(len(labels)) if weights is None else weights, dtype=torch.float32)
     bound = torch.as_tensor(model.action_space.high, dtype=torch.float32)
     policy.set_training_mode(True)
     losses = []
@@ -218,7 +188,7 @@ def _fit_actor(model, optimizer, observations, labels, settings: DaggerSettings,
                 if anneal else None)
     for batch in _batches(len(observations), settings.batch_size, epochs, rng):
         mean = _mean_action(policy, obs_t[batch])
-        loss = _action_loss(mean, labels_t[batch], settings.loss, bound, weights_t[batch])
+        loss = _action_loss(mean, labels_t[batch], settings.loss, bound)
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
@@ -231,16 +201,14 @@ def _fit_actor(model, optimizer, observations, labels, settings: DaggerSettings,
     return float(np.mean(losses[-batches_per_epoch:]))
 
 
-def _action_loss(mean, labels, kind: str, bound, weights=None):
-    """Weighted mean squared error; "saturated": a label at +-bound (symmetric Box) leaves a mean beyond it
-    unpenalised."""
+def _action_loss(mean, labels, kind: str, bound):
+    """Mean squared error; "saturated": a label at +-bound (symmetric Box) leaves a mean beyond it unpenalised."""
     import torch
     error = mean - labels
     if kind == "saturated":
         error = torch.where(labels >= bound, torch.clamp(error, max=0.0), error)
         error = torch.where(labels <= -bound, torch.clamp(error, min=0.0), error)
-    squared = error * error
-    return torch.mean(squared if weights is None else weights[:, None] * squared)
+    return torch.mean(error * error)
 
 
 def _fit_value(model, optimizer, observations, targets, settings: DaggerSettings, rng) -> None:
