@@ -71,7 +71,10 @@ Per sample (`update`):
    of windows), 4 of them in the window ending at 155 s. Those windows' mean noise was not extreme (z -0.9 to
    2.3) nor their R low, so the pitot's noise adds to slow content of the residual there. The test is that
    fine: on the flight as flown, the alarm window's mean pitot error stood 0.017 m/s from the flight's, which
-   moved the torque residual by 0.44 sqrt(R).
+   moved the torque residual by 0.44 sqrt(R). Nor is it serial correlation at the FDI rate, which the Bayes
+   filters' independence assumption would overcount: on the same 10 flights (session 23; on this build one false
+   alarm, that flight's) the calibration residual's lag-one autocorrelation was at most 0.07, and below 0 on the
+   alarming flight, so inflating S by the AR(1) factor (1 + rho) / (1 - rho) has nothing to correct there.
 
 The detector only runs while the pusher drives wing-borne flight (airspeed >= `min_airspeed` and current
 >= `min_current`, held for `settle` s) below 98% of the ESC's speed limit (there the speed is clipped and
