@@ -74,7 +74,7 @@ def test_an_ekf_reading_low_delays_the_ramp_alarm_by_bias_over_rate(bias):
     t = np.arange(200) / HZ
     ramp = np.where(t < 1.0, 0.0, -2.5 * (t - 1.0))
     shift = run(ramp - bias).alarm_time - run(ramp).alarm_time
-    assert shift == pytest.approx(-bias / 2.5, abs=0.5 / HZ)      # within half a sample of 0.08 s
+    assert shift == pytest.approx(-bias / 2.5, abs=0.5 / HZ)      # 0.08 s, to within half a sample
 
 
 def test_noise_below_thresholds_does_not_alarm():

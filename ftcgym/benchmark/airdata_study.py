@@ -96,7 +96,7 @@ def _score(samples: np.ndarray, info: dict, onset) -> dict:
     before = monitored & (time < (onset if onset is not None else math.inf))
     out["airspeed_rmse_before_onset"] = _rms(error[before])
     if onset is not None:
-        # signed: an EKF reading low by b raises r = pitot - EKF by b, so a falling pitot crosses -Z_norm b / rate later
+        # signed: an EKF reading b low raises r = pitot - EKF by b, so a falling pitot reaches -Z_norm b / rate s later
         recent = before & (time >= onset - BIAS_WINDOW)
         out["airspeed_bias_before_onset"] = float(np.mean(ekf[recent] - true[recent])) if recent.any() else None
     sensor_alarm = min([t for t in (alarms["gnss"], alarms["pusher_rpm"]) if t is not None], default=None)
