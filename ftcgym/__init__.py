@@ -6,9 +6,9 @@ __version__ = "0.1.0"
 _ENVS = {
     "ftcgym/Quadrotor-v0": "ftcgym.envs.quadrotor:QuadrotorEnv",
     "ftcgym/QuadPlane-v0": "ftcgym.envs.quadplane:QuadPlaneEnv",
-    "ftcgym/QuadPlaneAutopilot-v0": "ftcgym.envs.quadplane_autopilot_env:QuadPlaneAutopilotEnv",
-    "ftcgym/RotorLossRecovery-v0": "ftcgym.training.tasks:RotorLossRecoveryEnv",
-    "ftcgym/AirspeedSource-v0": "ftcgym.training.airspeed_task:AirspeedSourceEnv",
+    "ftcgym/QuadPlaneAutopilot-v0": "ftcgym.task_envs.autopilot:QuadPlaneAutopilotEnv",
+    "ftcgym/RotorLossRecovery-v0": "ftcgym.task_envs.rotor_loss_recovery:RotorLossRecoveryEnv",
+    "ftcgym/AirspeedSource-v0": "ftcgym.task_envs.airspeed_source:AirspeedSourceEnv",
 }
 for _id, _entry in _ENVS.items():
     if _id not in registry:

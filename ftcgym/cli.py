@@ -121,8 +121,10 @@ def _with_detector(scenario, detector: str | None, detector_kwargs: dict):
 
 def _detector_name(text: str) -> str:
     from ftcgym.fdd import DETECTORS
-    if text not in DETECTORS:
-        raise argparse.ArgumentTypeError(f"unknown detector {text!r}; accepted: {', '.join(sorted(DETECTORS))}")
+    try:
+        DETECTORS.load(text)          # a built-in, installed or MODULE:ATTR detector that imports
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
     return text
 
 
@@ -152,17 +154,16 @@ def _bench_config(args, argv: list[str], scenarios, wall_time_s: float) -> dict:
 
 
 def _listing() -> str:
-    from ftcgym import agents
+    from ftcgym.agents import POLICIES
     from ftcgym.benchmark.scenarios import SCENARIOS
+    from ftcgym.fdd import DETECTORS
 
-    # agents may describe its policies in POLICY_DESCRIPTIONS (name -> one line); names alone otherwise.
-    descriptions = getattr(agents, "POLICY_DESCRIPTIONS", {})
-
-    width = max(map(len, [*SCENARIOS, *agents.POLICY_NAMES]))
+    width = max(map(len, [*SCENARIOS, *POLICIES, *DETECTORS]))
     lines = ["scenarios (* = run by default):"]
     lines += [f"  {name:<{width}} {'*' if s.default else ' '} {s.description}" for name, s in SCENARIOS.items()]
-    lines += ["policies:"]
-    lines += [f"  {name:<{width}}   {descriptions.get(name, '')}".rstrip() for name in agents.POLICY_NAMES]
+    for title, registry in (("policies", POLICIES), ("detectors", DETECTORS)):
+        lines += [f"{title} (or MODULE:ATTR):"]
+        lines += [f"  {name:<{width}}   {registry.describe(name)}".rstrip() for name in registry]
     return "\n".join(lines)
 
 
@@ -177,9 +178,11 @@ def _scenario(name: str):
 
 
 def _policy_name(name: str) -> str:
-    from ftcgym.agents import POLICY_NAMES
-    if name not in POLICY_NAMES:
-        raise argparse.ArgumentTypeError(f"unknown policy {name!r}; available: {', '.join(POLICY_NAMES)}")
+    from ftcgym.agents import POLICIES
+    try:
+        POLICIES.load(name)           # a built-in, installed or MODULE:ATTR policy that imports
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
     return name
 
 
@@ -279,7 +282,7 @@ def _add_trim(subparsers) -> None:
 
 def _run_trim(args, argv: list[str]) -> int:
     from ftcgym.agents.quadplane_trim import default_airspeeds, format_trim_table, trim_table
-    from ftcgym.envs.vsqp import make_vsqp_params
+    from ftcgym.models.vsqp import make_vsqp_params
 
     params = make_vsqp_params(args.vehicle, args.vehicle_overrides)
     print(format_trim_table(trim_table(params, args.airspeeds or default_airspeeds(params))))

@@ -81,7 +81,7 @@ def detector_costs(steps: int, seed: int) -> dict:
 
     flights = {}
     costs = {}
-    for name in DETECTORS:
+    for name in DETECTORS.builtins:
         env_id = DETECTOR_ENV.get(name, QUADROTOR)
         if env_id not in flights:
             flights[env_id] = _record_flight(env_id, steps, seed)

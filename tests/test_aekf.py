@@ -20,7 +20,7 @@ from scipy.linalg import expm
 
 from conftest import LIGHT_WIND, make_env
 from ftcgym.agents import make_policy
-from ftcgym.envs.vehicles import BEBOP2
+from ftcgym.models.quadrotor import BEBOP2
 from ftcgym.fdd.aekf import N_X, AugmentedEkfDetector, aekf_wrapper
 from ftcgym.fdd.base import Detector
 

@@ -13,7 +13,7 @@ import pytest
 from scipy import signal
 
 import ftcgym  # noqa: F401  (registers the env ids)
-from ftcgym.envs.vsqp import VSQP
+from ftcgym.models.vsqp import VSQP
 from ftcgym.fdd import wrap_with_detector
 from ftcgym.fdd.airdata_ekf import (TABLE_1_Q, TABLE_1_R, AirdataEkfDetector, ComponentForceModel,
                                     az_covariance_gain, butterworth_prefilter, ekf_step)
@@ -52,7 +52,7 @@ def test_model_error_scales_every_coefficient():
     exact = ComponentForceModel(VSQP, 0.0)
     wrong = ComponentForceModel(VSQP, 0.1)
     assert all(s == pytest.approx(1.1) for s in wrong.scale.values())
-    assert wrong.k_f == pytest.approx(1.1 * exact.k_f) and wrong.cl0 == pytest.approx(1.1 * exact.cl0)
+    assert wrong.k_f == pytest.approx(1.1 * exact.k_f) and wrong.params.wing_cl0 == pytest.approx(1.1 * exact.params.wing_cl0)
     signs = ComponentForceModel(VSQP, 0.1, error_seed=3).scale
     assert set(np.round(list(signs.values()), 9)) <= {0.9, 1.1}
     # Cruise (18 m/s, 3 deg alpha, wing fully skewed): the wing carries about the weight in the exact model.

@@ -9,7 +9,7 @@ import ftcgym  # noqa: F401
 from ftcgym.cli import main
 from ftcgym.training.config import load_config
 from ftcgym.training.imitation import DaggerSettings
-from ftcgym.training.tasks import N_FEATURES, RotorLossRecoveryEnv
+from ftcgym.task_envs.rotor_loss_recovery import N_FEATURES, RotorLossRecoveryEnv
 
 pytest.importorskip("stable_baselines3")
 

@@ -8,7 +8,7 @@ import pytest
 
 from conftest import LIGHT_WIND, make_env
 from ftcgym.agents import make_policy
-from ftcgym.envs.vehicles import make_params
+from ftcgym.models.quadrotor import make_params
 from ftcgym.fdd.base import Detector
 from ftcgym.fdd.iv_change import IvChangeDetector, IvCost, IvEstimate, SixDofResidual, iv_change_wrapper
 

@@ -7,7 +7,7 @@ import pytest
 
 import ftcgym  # noqa: F401
 from ftcgym.training.shipped import shipped_path
-from ftcgym.training.tasks import N_FEATURES
+from ftcgym.task_envs.rotor_loss_recovery import N_FEATURES
 
 pytest.importorskip("stable_baselines3")
 

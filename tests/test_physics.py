@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 
 from conftest import fly, hover_command, make_env
-from ftcgym.envs.sensors import GYRO_LIMIT
-from ftcgym.envs.vehicles import BEBOP2, GRAVITY, MUELLER2014, make_params
+from ftcgym.models.sensors import GYRO_LIMIT
+from ftcgym.models.quadrotor import BEBOP2, GRAVITY, MUELLER2014, make_params
 
 
 @pytest.mark.parametrize("vehicle", ["bebop2", "mueller2014"])

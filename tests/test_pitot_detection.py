@@ -4,6 +4,7 @@ import pytest
 
 from ftcgym.agents import make_policy
 from ftcgym.agents.airspeed_policies import AirspeedSwitchPolicy, SyntheticOnlyPolicy
+from ftcgym.models.vsqp import VSQP
 from ftcgym.fdd.pitot_detection import (CUSUM_DEFAULT, TABLE_2_DERIVATIVE, TABLE_2_NORM, PitotConfirmation,
                                        PitotResidualDetector, ResidualCusum, ThresholdCriterion)
 
@@ -131,9 +132,9 @@ def test_airspeed_switch_needs_the_detector():
 
 
 def test_policies_are_registered():
-    class Base:
-        params = type("P", (), {"hover_thrust_coefficient": 1.0})()
-        autopilot = object()
+    class Base:                 # QuadPlaneAutopilot-v0 as the catalogue sees it: a VSQP flown by airspeed
+        params = VSQP
+        controls = "airspeed"
 
     class Env:
         unwrapped = Base()

@@ -9,8 +9,8 @@ import pytest
 
 import ftcgym  # noqa: F401  (registers the env ids)
 from ftcgym.benchmark.metrics import isolation_target
-from ftcgym.envs.pusher import steady_state_current
-from ftcgym.envs.vsqp import VSQP
+from ftcgym.models.pusher import steady_state_current
+from ftcgym.models.vsqp import VSQP
 from ftcgym.fdd import wrap_with_detector
 from ftcgym.fdd.propulsion_bayes import (FAULT_PRIOR, HEALTH_PRIOR, MODES, BayesFilter, PropulsionBayesDetector,
                                          PropulsionModel, ScalarKalmanFilter, _BlockAverager)

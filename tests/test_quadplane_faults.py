@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from ftcgym.envs.faults import KINDS, QUADPLANE_KINDS, FaultSchedule, parse_faults, resolve
+from ftcgym.models.faults import KINDS, QUADPLANE_KINDS, FaultSchedule, parse_faults, resolve
 
 SENSORS = ("pitot_airspeed", "gnss_velocity", "skew", "pusher_speed", "hover_rotor_speed")
 

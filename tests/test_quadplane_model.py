@@ -9,9 +9,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from ftcgym.agents.quadplane_trim import trim
-from ftcgym.envs.pusher import PusherMotor, pusher_thrust, steady_state_current, throttle_for_speed
-from ftcgym.envs.quadplane_aero import aero_wrench, hover_rotor_wrench, skew_schedule, stall_speed
-from ftcgym.envs.vsqp import RPM, VSQP, make_vsqp_params
+from ftcgym.models.pusher import PusherMotor, pusher_thrust, steady_state_current, throttle_for_speed
+from ftcgym.models.quadplane_aero import aero_wrench, hover_rotor_wrench, skew_schedule, stall_speed
+from ftcgym.models.vsqp import RPM, VSQP, make_vsqp_params
 
 P = VSQP
 HALF_PI = 0.5 * math.pi

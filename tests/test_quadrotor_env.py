@@ -7,7 +7,7 @@ from gymnasium.utils.env_checker import check_env
 
 from conftest import LIGHT_WIND, hover_command, make_env
 from ftcgym.agents import make_policy
-from ftcgym.envs import FaultSpec
+from ftcgym.models import FaultSpec
 
 
 def test_gymnasium_check_env():

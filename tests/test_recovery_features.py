@@ -1,10 +1,10 @@
-"""The recovery task's features (`ftcgym.training.tasks.recovery_features`): the heading and the half turn
+"""The recovery task's features (`ftcgym.task_envs.rotor_loss_recovery.recovery_features`): the heading and the half turn
 about body z, symmetries of a quadrotor's recovery, leave them unchanged."""
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from ftcgym.training.tasks import HALF_TURN_ROTORS, N_FEATURES, recovery_features, rotor_order
+from ftcgym.task_envs.rotor_loss_recovery import HALF_TURN_ROTORS, N_FEATURES, recovery_features, rotor_order
 
 OMEGA_MAX = 1000.0
 PREFIX = "fdd/loe_kalman/"

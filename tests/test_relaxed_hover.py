@@ -8,7 +8,7 @@ from scipy.spatial.transform import Rotation
 from conftest import make_env
 from ftcgym.agents import relaxed_hover_equilibrium
 from ftcgym.agents.relaxed_hover import body_moment
-from ftcgym.envs.vehicles import GRAVITY, MUELLER2014, make_params
+from ftcgym.models.quadrotor import GRAVITY, MUELLER2014, make_params
 
 # 001 App. B "mueller" case, as its script has them (I_zz_P with the script's 1e-6 unit slip).
 APP_B = {"Ixx": 3.2e-3, "Izz": 5.5e-3, "Izz_P": 1.5e-5 * 1e-6, "m": 0.5, "l": 0.17, "k_f": 6.41e-6,

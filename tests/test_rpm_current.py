@@ -4,8 +4,8 @@ import itertools
 import numpy as np
 import pytest
 
-from ftcgym.envs.pusher import PusherMotor, steady_state_current
-from ftcgym.envs.vsqp import VSQP
+from ftcgym.models.pusher import PusherMotor, steady_state_current
+from ftcgym.models.vsqp import VSQP
 from ftcgym.fdd.airdata_ekf import TakeoffGate
 from ftcgym.fdd.propulsion_bayes import PropulsionModel
 from ftcgym.fdd.rpm_current import RpmCurrentCheck, speed_from_current

@@ -5,15 +5,15 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from conftest import make_env
-from ftcgym.agents import POLICY_NAMES, OracleSpinPolicy, SpinAfterAlarmPolicy, SpinRecoveryController, make_policy
+from ftcgym.agents import POLICIES, OracleSpinPolicy, SpinAfterAlarmPolicy, SpinRecoveryController, make_policy
 from ftcgym.agents.spin_recovery import thrust_axis_reference_for
 from ftcgym.benchmark import metrics
-from ftcgym.envs.vehicles import GRAVITY
+from ftcgym.models.quadrotor import GRAVITY
 from ftcgym.fdd import wrap_with_detector
 
 
 def test_spin_policies_are_registered():
-    assert {"nominal", "ftc-spin", "oracle-spin"} <= set(POLICY_NAMES)
+    assert {"nominal", "ftc-spin", "oracle-spin"} <= set(POLICIES)
     env = wrap_with_detector("loe_kalman", make_env(vehicle="mueller2014"))
     assert isinstance(make_policy("ftc-spin", env), SpinAfterAlarmPolicy)
     oracle = make_policy("oracle-spin", env)

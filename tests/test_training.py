@@ -11,7 +11,7 @@ import yaml
 import ftcgym  # noqa: F401
 from ftcgym.cli import main
 from ftcgym.training.config import builtin_tasks, load_config
-from ftcgym.training.tasks import N_FEATURES, RotorLossRecoveryEnv
+from ftcgym.task_envs.rotor_loss_recovery import N_FEATURES, RotorLossRecoveryEnv
 
 pytest.importorskip("stable_baselines3")
 

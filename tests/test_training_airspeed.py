@@ -9,7 +9,8 @@ import yaml
 
 import ftcgym  # noqa: F401
 from ftcgym.cli import main
-from ftcgym.training.airspeed_task import (N_FEATURES, AirspeedSourceEnv, LearnedAirspeedPolicy, airspeed_features,
+from ftcgym.training.policy import LearnedAirspeedPolicy
+from ftcgym.task_envs.airspeed_source import (N_FEATURES, AirspeedSourceEnv, airspeed_features,
                                            airspeed_reward, blend, to_weight)
 from ftcgym.training.config import builtin_tasks, load_config
 

@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from ftcgym.envs.wind import TURBULENCE_PRESETS, DrydenWind
+from ftcgym.models.wind import TURBULENCE_PRESETS, DrydenWind
 
 LIGHT_SIGMAS = np.array([1.1006, 0.6576, 0.4168])
 LIGHT_LENGTHS = np.array([65.8567, 19.2356, 2.8])

@@ -10,9 +10,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.linalg import solve_continuous_are
 
-from ..envs.vehicles import YAW_SIGNS, QuadrotorParams
-from ..geometry import cross
-from .relaxed_hover import body_moment, rotational_drag_moment, rotor_roles
+from ..models.quadrotor import YAW_SIGNS, QuadrotorParams
+from ..models.geometry import cross
+from .relaxed_hover import body_moment, rotor_roles
 
 if TYPE_CHECKING:
     from .spin_recovery import SpinRecoveryGains
@@ -68,7 +68,7 @@ class ScheduledAxisLqr:
         rates = r / axis[2] * axis
         h_z = self._propeller_momentum(thrust, rotor_speed)
         momentum = self.inertia * rates + np.array([0.0, 0.0, h_z])
-        needed = cross(rates, momentum) - rotational_drag_moment(self.params, rates)
+        needed = cross(rates, momentum) - self.params.rotational_drag_moment(rates)
         forces = np.linalg.solve(self.balance_rows, np.array([needed[0], needed[1], thrust]))
         if forces[self.opposite] < self.f_min and self.gains.balance_idle:
             rates, forces = self._idle_balance(rates, thrust, h_z)

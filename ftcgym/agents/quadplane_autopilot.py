@@ -34,11 +34,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..envs.pusher import throttle_for_speed
-from ..envs.quadplane_aero import aero_wrench, skew_schedule
-from ..envs.tasks import MissionTask
-from ..envs.vehicles import GRAVITY
-from ..geometry import cross, rotation_matrix
+from ..models.pusher import throttle_for_speed
+from ..models.quadplane_aero import aero_wrench, skew_schedule
+from ..models.tasks import MissionTask
+from ..models.constants import GRAVITY
+from ..models.geometry import rotation_from_euler, cross, rotation_matrix
 
 PHASES = ("takeoff", "hover", "transition", "cruise", "back_transition", "return", "land", "landed")
 QUAD_PHASES = ("takeoff", "hover", "return", "land")
@@ -290,7 +290,7 @@ class QuadPlaneAutopilot:
             bank_limit = math.radians(self.gains.max_bank_deg)
             bank = float(np.clip(math.atan2(float(accel[:2] @ right), GRAVITY), -bank_limit, bank_limit))
             pitch = float(np.clip(pitch, -math.radians(self.gains.max_pitch_deg), math.radians(self.gains.max_pitch_deg)))
-            R_des = _euler_matrix(bank, pitch, yaw)
+            R_des = rotation_from_euler(bank, pitch, yaw)
         thrust = float(-force @ R_des[:, 2])                              # along -z_des, rotors + wing
         needed = thrust - self._wing_lift(nav, airspeed, pitch is not None)
         share = self._cruise_share()
@@ -520,10 +520,3 @@ def _attitude_from_axis(thrust_axis, yaw) -> np.ndarray:
     y /= np.linalg.norm(y)
     x = np.cross(y, z)
     return np.column_stack([x, y, z])
-
-
-def _euler_matrix(roll, pitch, yaw) -> np.ndarray:
-    cr, sr, cp, sp, cy, sy = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), math.cos(yaw), math.sin(yaw)
-    return np.array([[cp * cy, sr * sp * cy - cr * sy, cr * sp * cy + sr * sy],
-                     [cp * sy, sr * sp * sy + cr * cy, cr * sp * sy - sr * cy],
-                     [-sp, sr * cp, cr * cp]])

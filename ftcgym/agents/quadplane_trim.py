@@ -21,10 +21,10 @@ import math
 import numpy as np
 from scipy.optimize import least_squares
 
-from ftcgym.envs.pusher import pusher_thrust, steady_state_current, throttle_for_speed
-from ftcgym.envs.quadplane_aero import aero_wrench, skew_schedule, stall_speed, wing_wrench
-from ftcgym.envs.vehicles import GRAVITY
-from ftcgym.envs.vsqp import RPM
+from ftcgym.models.pusher import pusher_thrust, steady_state_current, throttle_for_speed
+from ftcgym.models.quadplane_aero import aero_wrench, skew_schedule, stall_speed, wing_wrench
+from ftcgym.models.constants import GRAVITY
+from ftcgym.models.vsqp import RPM
 
 MAX_TRIM_ALPHA = math.radians(10.0)   # issue 5 acceptance: forward-flight trims with alpha in [0, 10] deg
 MIN_TRIM_ALPHA = math.radians(-10.0)  # above ~22 m/s the wing-borne alpha may go below 0

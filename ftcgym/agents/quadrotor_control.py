@@ -13,10 +13,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..geometry import cross, rotation_matrix
-from ..envs.vehicles import GRAVITY, YAW_SIGNS, QuadrotorParams
+from ..models.geometry import cross, rotation_matrix
+from ..models.constants import GRAVITY
+from ..models.quadrotor import YAW_SIGNS, QuadrotorParams
+from .base import UP
 
-UP = np.array([0.0, 0.0, -1.0])  # NED
 
 
 @dataclass

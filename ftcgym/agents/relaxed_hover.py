@@ -24,7 +24,8 @@ import dataclasses
 import numpy as np
 from scipy.optimize import fsolve
 
-from ..envs.vehicles import GRAVITY, YAW_SIGNS, QuadrotorParams, make_params
+from ..models.constants import GRAVITY
+from ..models.quadrotor import YAW_SIGNS, QuadrotorParams, make_params
 
 RESIDUAL_TOLERANCE = 1e-9   # N m and N: a root that misses by more is not an equilibrium
 
@@ -73,17 +74,12 @@ def propeller_momentum(params: QuadrotorParams, omega: np.ndarray, loaded: np.nd
     return np.array([0.0, 0.0, -params.propeller_inertia * float(np.dot(np.asarray(YAW_SIGNS) * loaded, omega))])
 
 
-def rotational_drag_moment(params: QuadrotorParams, rates: np.ndarray) -> np.ndarray:
-    """-(D1 + D2 |Omega|) Omega, as the simulator applies it (`QuadrotorParams.rotational_drag_moment`)."""
-    return params.rotational_drag_moment(rates)
-
-
 def body_moment(params: QuadrotorParams, rates, forces, loaded) -> np.ndarray:
     """Net moment on the body at body rates `rates` with steady rotor forces (eq. 12-14 generalised)."""
     omega = np.sqrt(np.maximum(forces, 0.0) / params.thrust_coefficient)
     inertia = np.asarray(params.inertia, dtype=float)
     momentum = inertia * rates + propeller_momentum(params, omega, loaded)
-    return rotor_moment(params, forces) - np.cross(rates, momentum) + rotational_drag_moment(params, rates)
+    return rotor_moment(params, forces) - np.cross(rates, momentum) + params.rotational_drag_moment(rates)
 
 
 def _residual(x, params, rho, failed_rotor, weight, loaded):

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..envs.vehicles import QuadrotorParams
+from ..models.quadrotor import QuadrotorParams
 from .quadrotor_control import NominalController
 from .spin_recovery import SpinRecoveryController, SpinRecoveryGains
 

@@ -27,11 +27,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..geometry import cross, rotation_matrix
-from ..envs.sensors import GYRO_LIMIT
-from ..envs.vehicles import GRAVITY, QuadrotorParams
+from ..models.geometry import cross, rotation_matrix
+from ..models.sensors import GYRO_LIMIT
+from ..models.constants import GRAVITY
+from ..models.quadrotor import QuadrotorParams
 from .axis_lqr import ScheduledAxisLqr
-from .quadrotor_control import UP
+from .base import UP
 from .relaxed_hover import relaxed_hover_equilibrium
 
 #: Force ratio rho = f_opposite / f_adjacent flown per vehicle; others get `choose_rho`.

@@ -8,6 +8,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ftcgym.criteria import (AIRSPEED_TOLERANCE, ALTITUDE_TOLERANCE, ENVELOPE_PITCH, ENVELOPE_ROLL,  # noqa: F401
+                             RECOVERY_HOLD, THRUST_AXIS_TOLERANCE)
 from ftcgym.fdd.metrics import false_alarms_per_hour, isolation_accuracy, missed_detection_rate
 
 EPISODE_FIELDS = (
@@ -25,11 +27,6 @@ SUMMARY_FIELDS = (
     "recovery_latency_median", "recovery_latency_p95", "success_rate", "crash_rate",
 )
 
-# Rotor-loss recovery (DESIGN.md): altitude within 0.5 m of its target and the thrust axis within
-# 10 deg of the controller's reference, held for 2 s.
-ALTITUDE_TOLERANCE = 0.5              # m
-THRUST_AXIS_TOLERANCE = np.radians(10.0)
-RECOVERY_HOLD = 2.0                   # s
 UP = np.array([0.0, 0.0, -1.0])       # NED: the thrust axis of a level vehicle
 
 
@@ -70,11 +67,6 @@ def recovery_time(time, recovered, onset: float, hold: float = RECOVERY_HOLD) ->
     return float(time[starts[long_enough[0]]]) if long_enough.size else None
 
 
-# Airspeed-fault recovery (DESIGN.md): the airspeed the autopilot uses within 2 m/s of the true airspeed,
-# attitude inside the flight envelope.
-AIRSPEED_TOLERANCE = 2.0              # m/s
-ENVELOPE_ROLL = np.radians(45.0)
-ENVELOPE_PITCH = np.radians(30.0)
 # Flight phases by wing skew, as 001 Table 5 splits them: quad mode below 30 deg, transition 30-80 deg,
 # forward flight above 80 deg.
 TRANSITION_SKEW = (np.radians(30.0), np.radians(80.0))

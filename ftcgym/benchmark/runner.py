@@ -15,13 +15,13 @@ from dataclasses import dataclass
 import gymnasium as gym
 import numpy as np
 
+from ftcgym.agents import make_policy, policy_view, thrust_axis_reference
 from ftcgym.benchmark import metrics
 from ftcgym.benchmark.backends import Job, run_jobs
 from ftcgym.benchmark.scenarios import Scenario, get_scenario
+from ftcgym.fdd import published_detector, wrap_with_detector
 from ftcgym.fdd.metrics import detection_delay, is_false_alarm
 
-# What a policy must not see (DESIGN.md): it learns of a fault only from detectors.
-PRIVATE_INFO_KEYS = ("truth", "fault", "faults")
 TRAJECTORY_MAX_HZ = 50.0
 EVENT_BEFORE_S, EVENT_AFTER_S = 0.3, 0.7  # full-rate window kept around a fault onset, for plots
 
@@ -29,24 +29,6 @@ EVENT_BEFORE_S, EVENT_AFTER_S = 0.3, 0.7  # full-rate window kept around a fault
 def episode_seed(seed: int, index: int) -> int:
     """The env seed of episode `index` of a run seeded with `seed`."""
     return int(np.random.SeedSequence([seed, index]).generate_state(1)[0])
-
-
-def policy_view(info: dict, policy) -> dict:
-    """A copy of `info` without ground truth; an oracle (`uses_true_onset`) also gets the true onset and,
-    once it has happened, the faulty target; an airspeed oracle (`uses_true_airspeed`) the true airspeed."""
-    view = {key: value for key, value in info.items() if key not in PRIVATE_INFO_KEYS}
-    if getattr(policy, "uses_true_airspeed", False):
-        view["oracle_airspeed"] = info["truth"]["airspeed"]
-    if getattr(policy, "uses_true_onset", False):
-        onset = info["fault"]["onset_time"]
-        view["oracle_onset_time"] = onset
-        view["oracle_fault_target"] = info["fault"]["target"] if onset is not None else None
-    return view
-
-
-def thrust_axis_reference(policy) -> np.ndarray:
-    """Where the policy wants the thrust axis (NED unit vector); straight up unless it says otherwise."""
-    return np.array(getattr(policy, "thrust_axis_reference", metrics.UP), dtype=float)
 
 
 @dataclass
@@ -255,8 +237,6 @@ def event_window(log: EpisodeLog, before: float = EVENT_BEFORE_S, after: float =
 def make_env(scenario: Scenario, env_overrides: dict | None = None) -> gym.Env:
     """The scenario's env, its kwargs updated (top-level keys) by `env_overrides`, wrapped with the
     scenario's detector, then with its further wrappers."""
-    from ftcgym.fdd import wrap_with_detector
-
     kwargs = copy.deepcopy({**scenario.env_kwargs, **(env_overrides or {})})
     env = gym.make(scenario.env_id, **kwargs)
     if scenario.detector is not None:
@@ -268,14 +248,12 @@ def make_env(scenario: Scenario, env_overrides: dict | None = None) -> gym.Env:
 
 def run_episode(scenario: Scenario | str, policy_name: str, seed: int,
                 env_overrides: dict | None = None) -> dict:
-    """One episode: its row of EPISODE_FIELDS (JSON-ready values) plus "trajectory" (arrays)."""
-    # Imported here: recording and scoring also serve fake envs and logs, without the controllers.
-    from ftcgym.agents import make_policy
-
+    """One episode: its row of EPISODE_FIELDS (JSON-ready values) plus "trajectory" (arrays). `policy_name`
+    is any name `ftcgym.agents.make_policy` takes; the row carries it as given."""
     scenario = get_scenario(scenario) if isinstance(scenario, str) else scenario
     env = make_env(scenario, env_overrides)
     try:
-        log = roll_out(env, make_policy(policy_name, env), seed, scenario.detector)
+        log = roll_out(env, make_policy(policy_name, env), seed, published_detector(env, scenario.detector))
     finally:
         env.close()
     values = {"scenario": scenario.name, "policy": policy_name, "seed": int(seed), **score_episode(log)}

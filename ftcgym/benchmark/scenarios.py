@@ -10,7 +10,8 @@ import math
 from dataclasses import dataclass, field, replace
 from typing import Callable
 
-from ftcgym.benchmark.random_wind import random_mean_wind
+from ftcgym.benchmark.random_wind import random_mean_wind_wrapper
+from ftcgym.registry import Registry
 
 QUADROTOR = "ftcgym/Quadrotor-v0"
 QUADPLANE_AUTOPILOT = "ftcgym/QuadPlaneAutopilot-v0"
@@ -47,6 +48,8 @@ class Scenario:
 
 
 SCENARIOS: dict[str, Scenario] = {}
+#: scenarios of installed packages (entry-point group `ftcgym.scenarios`) and MODULE:ATTR references
+PLUG_INS = Registry("scenario", "ftcgym.scenarios", {})
 
 
 def register(scenario: Scenario) -> Scenario:
@@ -58,11 +61,19 @@ def register(scenario: Scenario) -> Scenario:
 
 
 def get_scenario(name: str) -> Scenario:
-    """The registered scenario called `name`."""
-    try:
+    """The scenario called `name`: a registered one, an installed plug-in (entry-point group
+    `ftcgym.scenarios`) or MODULE:ATTR; the latter two may also be a function of no arguments that returns
+    one. A scenario found by entry point or reference carries the name as given."""
+    if name in SCENARIOS:
         return SCENARIOS[name]
-    except KeyError:
-        raise ValueError(f"unknown scenario {name!r}; registered: {', '.join(SCENARIOS)}") from None
+    try:
+        found = PLUG_INS.load(name)
+    except ValueError as error:
+        raise ValueError(f"{error}; registered: {', '.join(SCENARIOS)}") from None
+    scenario = found() if callable(found) and not isinstance(found, Scenario) else found
+    if not isinstance(scenario, Scenario):
+        raise TypeError(f"scenario {name!r}: got {type(scenario).__name__}, not an ftcgym.benchmark.Scenario")
+    return replace(scenario, name=name)
 
 
 def default_scenarios() -> list[Scenario]:
@@ -223,7 +234,7 @@ register(Scenario(
     detector="airdata_ekf",
     description="Fault-free three-lap missions, mean wind 0-9 m/s from a random direction per episode and light "
                 "turbulence; counts false alarms of the pitot and innovation detectors.",
-    wrappers=(random_mean_wind,),
+    wrappers=(random_mean_wind_wrapper,),
 ))
 # Propulsion faults (issue 6, 003 Sec. IV-V), scored on propulsion_bayes: 8 laps of cruise on the pitot, truncated at
 # 300 s. The detector calibrates on early cruise (with its own airspeed step), detects from ~95 s and asks for a

@@ -153,7 +153,10 @@ def _parse_set(entry, where: str) -> ParameterSet:
     detector = entry.get("detector")
     if detector is not None:
         from ftcgym.fdd import DETECTORS
-        _require(detector in DETECTORS, f"{where}.detector", f"unknown {detector!r}; accepted: {sorted(DETECTORS)}")
+        try:
+            DETECTORS.load(detector)
+        except ValueError as error:
+            raise ValueError(f"{where}.detector: {error}") from None
     return ParameterSet(name=entry["name"], detector=detector,
                         policies=_policies(entry.get("policies"), f"{where}.policies"),
                         **{key: _dict(entry.get(key, {}), f"{where}.{key}") for key in DICT_SET_FIELDS})
@@ -191,10 +194,13 @@ def _merge_sets(base: ParameterSet, over: ParameterSet) -> ParameterSet:
 def _policies(value, where: str) -> tuple[str, ...] | None:
     if value is None:
         return None
-    from ftcgym.agents import POLICY_NAMES
+    from ftcgym.agents import POLICIES
     names = tuple(_list(value, where))
-    unknown = [name for name in names if name not in POLICY_NAMES]
-    _require(not unknown, where, f"unknown policies {unknown}; accepted: {list(POLICY_NAMES)}")
+    for name in names:
+        try:
+            POLICIES.load(name)
+        except ValueError as error:
+            raise ValueError(f"{where}: {error}") from None
     return names
 
 

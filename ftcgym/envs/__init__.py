@@ -1,9 +1,11 @@
-"""The simulation: PyBullet world, vehicle parameter sets, rotor, wind, sensor and fault models, Env classes."""
-from .faults import FaultSpec
+"""The PyBullet side of the simulation: the world of one rigid body and the Env classes.
+
+The numpy models these envs assemble (parameter sets, rotors, aerodynamics, wind, sensors, faults) are in
+`ftcgym.models`; they are re-exported here for convenience.
+"""
+from ..models import VEHICLES, FaultSpec, QuadrotorParams, VsqpParams, make_params, make_vsqp_params
 from .quadplane import QuadPlaneEnv
 from .quadrotor import QuadrotorEnv
-from .vehicles import VEHICLES, QuadrotorParams, make_params
-from .vsqp import VsqpParams, make_vsqp_params
 
 __all__ = ["FaultSpec", "QuadPlaneEnv", "QuadrotorEnv", "QuadrotorParams", "VEHICLES", "VsqpParams", "make_params",
            "make_vsqp_params"]

@@ -7,25 +7,35 @@ import math
 import gymnasium as gym
 import numpy as np
 
-from .tasks import make_task
-from .vehicles import GRAVITY
-from .wind import DrydenWind
+from ..models.tasks import make_task
+from ..models.constants import GRAVITY
+from ..models.wind import DrydenWind
 from .world import PyBulletWorld
 
 
 class FlightEnv(gym.Env):
     """Base class. Subclasses set the class constants, call `_setup` first in `__init__`, and implement
-    `_physics_step()`, `_observe()` and `_apply_faults()` (the faults in force from `self.time` on)."""
+    `_make_params(vehicle, overrides)`, `_parse_faults(faults)`, `_build_vehicle()` (the parts made from
+    `self.params`), `_physics_step()`, `_observe()` and `_apply_faults()` (the faults in force from `self.time`
+    on); `reset` starts with `_begin_episode(seed, options)`.
+
+    `reset(options=...)` takes `faults`, `wind` and `vehicle_overrides` for one episode (RESET_OPTIONS): each
+    is validated as the `gym.make` keyword of the same name and stands in for it until the next reset; a reset
+    without options flies the make-time configuration again.
+    """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 30}
+    RESET_OPTIONS = ("faults", "wind", "vehicle_overrides")
     BOUNDS = 100.0        # m, half-width of the flight box
     CEILING = 100.0       # m
     CRASH_SPEED = 2.0     # m/s, ground contact faster than this is an impact
     CRASH_TILT = np.deg2rad(60.0)   # rad, ground contact more tilted than this is a crash
 
-    def _setup(self, params, wind, task, max_episode_seconds, physics_hz, agent_hz, render_mode) -> None:
-        """Validate the shared keyword arguments and build the world, task and wind."""
-        self.params = params
+    def _setup(self, vehicle, vehicle_overrides, wind, faults, task, max_episode_seconds, physics_hz, agent_hz,
+               render_mode) -> None:
+        """Validate the shared keyword arguments and build the world, task, wind and faults."""
+        self.vehicle = vehicle
+        self.params = self._configured_params = self._make_params(vehicle, vehicle_overrides)
         self.physics_hz, self.agent_hz = _check_rates(physics_hz, agent_hz)
         self.substeps = int(round(self.physics_hz / self.agent_hz))
         self.dt = 1.0 / self.physics_hz
@@ -36,12 +46,42 @@ class FlightEnv(gym.Env):
             raise ValueError(f"render_mode: {render_mode!r}; accepted: None, {self.metadata['render_modes']}")
         self.render_mode = render_mode
         self.task = make_task(task)
-        self.wind = DrydenWind.from_config(wind, self.dt)
-        self.world = PyBulletWorld(self.physics_hz, params.mass, params.inertia, params.body_size,
+        self.wind = self._configured_wind = DrydenWind.from_config(wind, self.dt)
+        self.fault_specs = self._configured_faults = self._parse_faults(faults)
+        self.world = PyBulletWorld(self.physics_hz, self.params.mass, self.params.inertia, self.params.body_size,
                                    gui=render_mode == "human")
         self._gravity = np.array([0.0, 0.0, GRAVITY])
+
+    def _begin_episode(self, seed, options) -> None:
+        """`gym.Env.reset`'s seeding, then this episode's parameters, wind and faults (class docstring)."""
+        super().reset(seed=seed)
+        options = dict(options or {})
+        unknown = sorted(set(options) - set(self.RESET_OPTIONS), key=str)
+        if unknown:
+            raise ValueError(f"reset options: unknown key(s) {unknown}; accepted: {list(self.RESET_OPTIONS)}")
+        try:
+            params = (self._make_params(self.vehicle, options["vehicle_overrides"]) if "vehicle_overrides" in options
+                      else self._configured_params)
+            self.wind = DrydenWind.from_config(options["wind"], self.dt) if "wind" in options else self._configured_wind
+            self.fault_specs = self._parse_faults(options["faults"]) if "faults" in options else self._configured_faults
+        except ValueError as error:
+            raise ValueError(f"reset options: {error}") from None
+        if params is not self.params:
+            self._check_space_bounds(params)
+            self.params = params
+            self._build_vehicle()
         # Below this altitude the body may touch the ground: 1.5 x half its diagonal (contacts are queried only here).
-        self._ground_check_altitude = 0.75 * float(np.linalg.norm(params.body_size))
+        self._ground_check_altitude = 0.75 * float(np.linalg.norm(self.params.body_size))
+        self.world.set_body(self.params.mass, self.params.inertia, self.params.body_size)
+
+    def _check_space_bounds(self, params) -> None:
+        """Per-episode vehicle overrides must keep the observations inside the space fixed at `gym.make`."""
+        space = self._make_observation_space(params)
+        for key, box in space.spaces.items():
+            fixed = self.observation_space[key]
+            if np.any(box.high > fixed.high) or np.any(box.low < fixed.low):
+                raise ValueError(f"reset options: vehicle_overrides widen the bounds of observation {key!r} beyond "
+                                 f"the space fixed at gym.make; pass these overrides to gym.make instead")
 
     def _start(self, position, attitude) -> None:
         """Place the body at rest and reset the clock (reset's first step)."""

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry import cross, euler_from_quat, quat_from_euler, rotation_matrix  # noqa: F401 (re-exported)
+from ..models.geometry import rotation_matrix
 
 T_FLIP = np.array([1.0, -1.0, -1.0])  # diag(T): PyBullet <-> NED / FRD for vectors
 

@@ -28,14 +28,14 @@ import math
 import numpy as np
 from gymnasium import spaces
 
-from .faults import QUADPLANE_KINDS, FaultSchedule, parse_faults, resolve
+from ..models.faults import QUADPLANE_KINDS, FaultSchedule, parse_faults, resolve
 from .flight_env import FlightEnv, check_action
-from .frames import quat_from_euler
-from .pusher import PusherMotor
-from .quadplane_aero import aero_wrench
-from .rotors import RotorSet
-from .sensors import ACCEL_LIMIT, GYRO_LIMIT, QuadPlaneSensorConfig, QuadPlaneSensors
-from .vsqp import make_vsqp_params
+from ..models.geometry import quat_from_euler
+from ..models.pusher import PusherMotor
+from ..models.quadplane_aero import aero_wrench
+from ..models.rotors import RotorSet
+from ..models.sensors import ACCEL_LIMIT, GYRO_LIMIT, QuadPlaneSensorConfig, QuadPlaneSensors
+from ..models.vsqp import make_vsqp_params
 
 SENSOR_KEYS = ("gyro", "accel", "attitude", "position", "velocity", "pitot_airspeed", "gnss_velocity", "skew",
                "hover_rotor_speed", "pusher_speed", "pusher_current")
@@ -52,15 +52,29 @@ UNLOADED_SPEED_RATIO, UNLOADED_TIME_CONSTANT = 1.3, 0.02
 class QuadPlaneEnv(FlightEnv):
     """Quad-plane with actuator-level actions; see the module docstring for spaces, reward and termination."""
 
+    controls = "actuators"                 # what the action commands
     BOUNDS, CEILING = 2000.0, 1000.0   # m
     CRASH_SPEED = 3.0                  # m/s, ground contact faster than this is an impact (a 6.5 kg airframe)
 
     def __init__(self, vehicle: str = "vsqp", vehicle_overrides: dict | None = None, wind: dict | None = None,
                  faults=None, task="mission", max_episode_seconds: float = 240.0, physics_hz: float = 500.0,
                  agent_hz: float = 100.0, sensors: dict | None = None, render_mode: str | None = None):
-        self._setup(make_vsqp_params(vehicle, vehicle_overrides), wind, task, max_episode_seconds, physics_hz,
-                    agent_hz, render_mode)
-        self.fault_specs = parse_faults(faults, 4, SENSOR_KEYS, QUADPLANE_KINDS)
+        self._setup(vehicle, vehicle_overrides, wind, faults, task, max_episode_seconds, physics_hz, agent_hz,
+                    render_mode)
+        self._sensor_config = QuadPlaneSensorConfig.from_overrides(sensors)
+        self._surface_alpha = 1.0 - math.exp(-self.dt / SURFACE_TIME_CONSTANT)
+        self._build_vehicle()
+        self.action_space = spaces.Box(ACTION_LOW, ACTION_HIGH, dtype=np.float32)
+        self.observation_space = self._make_observation_space(self.params)
+
+    def _make_params(self, vehicle, overrides):
+        return make_vsqp_params(vehicle, overrides)
+
+    def _parse_faults(self, faults):
+        return parse_faults(faults, 4, SENSOR_KEYS, QUADPLANE_KINDS)
+
+    def _build_vehicle(self) -> None:
+        """Hover rotors, pusher, sensors and surface limits of the parameter set `self.params`."""
         p = self.params
         self.hover_rotors = RotorSet(p.hover_rotor_positions(0.0), p.hover_yaw_signs, p.hover_thrust_coefficient,
                                      p.hover_torque_coefficient, p.hover_omega_min, p.hover_omega_max,
@@ -68,15 +82,11 @@ class QuadPlaneEnv(FlightEnv):
                                      UNLOADED_SPEED_RATIO, UNLOADED_TIME_CONSTANT)
         self.pusher = PusherMotor(p)
         self._nominal_pusher = {name: getattr(self.pusher, name) for name in ("theta_1", "c_v", "I_0")}
-        self.sensors = QuadPlaneSensors(QuadPlaneSensorConfig.from_overrides(sensors), p.hover_omega,
-                                        1.0 / self.agent_hz)
+        self.sensors = QuadPlaneSensors(self._sensor_config, p.hover_omega, 1.0 / self.agent_hz)
         self._surface_limit = np.broadcast_to(np.asarray(p.surface_limit, dtype=float), (3,)).copy()
-        self._surface_alpha = 1.0 - math.exp(-self.dt / SURFACE_TIME_CONSTANT)
         self._rest_height = 0.5 * float(p.body_size[2])
-        self.action_space = spaces.Box(ACTION_LOW, ACTION_HIGH, dtype=np.float32)
-        self.observation_space = self._make_observation_space()
 
-    def _make_observation_space(self) -> spaces.Dict:
+    def _make_observation_space(self, params) -> spaces.Dict:
         big, fast = 1e4, MAX_SPEED
 
         def box(low, high, n):
@@ -87,8 +97,8 @@ class QuadPlaneEnv(FlightEnv):
             "attitude": box(-1.0, 1.0, 4), "position": box(-big, big, 3), "velocity": box(-fast, fast, 3),
             "pitot_airspeed": box(0.0, fast, 1), "gnss_velocity": box(-fast, fast, 3),
             "skew": box(-np.pi, np.pi, 1),
-            "hover_rotor_speed": box(0.0, 2.0 * self.params.hover_omega_max, 4),
-            "pusher_speed": box(0.0, 2.0 * self.params.pusher_omega_max, 1),
+            "hover_rotor_speed": box(0.0, 2.0 * params.hover_omega_max, 4),
+            "pusher_speed": box(0.0, 2.0 * params.pusher_omega_max, 1),
             "pusher_current": box(-1e3, 1e3, 1),
             "reference_position": box(-big, big, 3), "reference_velocity": box(-fast, fast, 3),
             "reference_yaw": box(-np.pi, np.pi, 1),
@@ -96,7 +106,8 @@ class QuadPlaneEnv(FlightEnv):
 
     # ----------------------------------------------------------------------------------------- reset
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        super().reset(seed=seed)
+        """Start an episode; `options` may hold `faults`, `wind`, `vehicle_overrides` for it (`FlightEnv`)."""
+        self._begin_episode(seed, options)
         rng = self.np_random
         self._faults = FaultSchedule(resolve(self.fault_specs, rng, 4), 4)
         position = np.array([0.0, 0.0, -self._rest_height])

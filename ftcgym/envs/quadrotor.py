@@ -24,12 +24,12 @@ import math
 import numpy as np
 from gymnasium import spaces
 
-from .faults import FaultSchedule, parse_faults, resolve
+from ..models.faults import FaultSchedule, parse_faults, resolve
 from .flight_env import FlightEnv, check_action
-from .frames import quat_from_euler
-from .rotors import RotorSet
-from .sensors import ACCEL_LIMIT, GYRO_LIMIT, QuadrotorSensors, SensorConfig
-from .vehicles import YAW_SIGNS, make_params
+from ..models.geometry import quat_from_euler
+from ..models.rotors import RotorSet
+from ..models.sensors import ACCEL_LIMIT, GYRO_LIMIT, QuadrotorSensors, SensorConfig
+from ..models.quadrotor import YAW_SIGNS, make_params, rotational_drag_moment
 
 SENSOR_KEYS = ("gyro", "accel", "attitude", "position", "velocity", "rotor_speed")
 BOUNDS = 100.0                    # m, half-width and ceiling of the flight box
@@ -41,27 +41,37 @@ MAX_SPEED = 100.0                 # m/s, observation bound on velocities (far ab
 class QuadrotorEnv(FlightEnv):
     """Quadrotor with motor-level actions; see the module docstring for spaces, reward and termination."""
 
+    controls = "rotors"                 # what the action commands
     BOUNDS = CEILING = BOUNDS
 
     def __init__(self, vehicle: str = "bebop2", vehicle_overrides: dict | None = None, wind: dict | None = None,
                  faults=None, task="hover", max_episode_seconds: float = 30.0, physics_hz: float = 500.0,
                  agent_hz: float = 500.0, sensors: dict | None = None, render_mode: str | None = None):
-        self._setup(make_params(vehicle, vehicle_overrides), wind, task, max_episode_seconds, physics_hz, agent_hz,
+        self._setup(vehicle, vehicle_overrides, wind, faults, task, max_episode_seconds, physics_hz, agent_hz,
                     render_mode)
-        self.fault_specs = parse_faults(faults, 4, SENSOR_KEYS)
-        self.rotors = RotorSet.from_params(self.params, YAW_SIGNS)
-        self.sensors = QuadrotorSensors(SensorConfig.from_overrides(sensors), 4, self.params.hover_omega,
-                                        1.0 / self.agent_hz)
-        self._body_drag = np.asarray(self.params.body_drag, dtype=float)
-        self._rot_drag = (np.asarray(self.params.rotational_drag, dtype=float),   # params.rotational_drag_moment,
-                          np.asarray(self.params.rotational_drag_quadratic, dtype=float))   # cached for the loop
+        self._sensor_config = SensorConfig.from_overrides(sensors)
+        self._build_vehicle()
         self.action_space = spaces.Box(0.0, 1.0, (4,), np.float32)
-        self.observation_space = self._make_observation_space()
+        self.observation_space = self._make_observation_space(self.params)
+
+    def _make_params(self, vehicle, overrides):
+        return make_params(vehicle, overrides)
+
+    def _parse_faults(self, faults):
+        return parse_faults(faults, 4, SENSOR_KEYS)
+
+    def _build_vehicle(self) -> None:
+        """Rotors, sensors and drag of the parameter set `self.params`."""
+        self.rotors = RotorSet.from_params(self.params, YAW_SIGNS)
+        self.sensors = QuadrotorSensors(self._sensor_config, 4, self.params.hover_omega, 1.0 / self.agent_hz)
+        self._body_drag = np.asarray(self.params.body_drag, dtype=float)
+        self._rot_drag = (np.asarray(self.params.rotational_drag, dtype=float),   # cached for the physics loop
+                          np.asarray(self.params.rotational_drag_quadratic, dtype=float))
 
     # ----------------------------------------------------------------------------------------- spaces
-    def _make_observation_space(self) -> spaces.Dict:
+    def _make_observation_space(self, params) -> spaces.Dict:
         far, fast = 2.0 * BOUNDS, MAX_SPEED  # the crash box bounds position; speed is bounded physically
-        omega_top = self.params.omega_max * self.params.unloaded_speed_ratio * 1.5
+        omega_top = params.omega_max * params.unloaded_speed_ratio * 1.5
 
         def box(low, high, n):
             return spaces.Box(low, high, (n,), np.float64)
@@ -79,7 +89,8 @@ class QuadrotorEnv(FlightEnv):
 
     # ----------------------------------------------------------------------------------------- reset
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        super().reset(seed=seed)
+        """Start an episode; `options` may hold `faults`, `wind`, `vehicle_overrides` for it (`FlightEnv`)."""
+        self._begin_episode(seed, options)
         rng = self.np_random
         self._faults = FaultSchedule(resolve(self.fault_specs, rng, 4), 4)
         self._has_payload = any(s.kind == "payload" for s in self._faults.specs)
@@ -114,8 +125,7 @@ class QuadrotorEnv(FlightEnv):
         air_body = R.T @ (self._vel - self._wind)
         force, moment = rotors.wrench(self._rates, air_body)
         force -= self._body_drag * air_body
-        linear, quadratic = self._rot_drag
-        moment -= (linear + quadratic * np.abs(self._rates)) * self._rates
+        moment += rotational_drag_moment(*self._rot_drag, self._rates)
         self.sensors.advance_rotor_phase(rotors.omega, dt)
         self._integrate(R, force, moment)
 

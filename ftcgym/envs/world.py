@@ -1,4 +1,4 @@
-"""The PyBullet world of one vehicle: a client, the ground, one rigid body, saved-state resets.
+"""The PyBullet world of one vehicle: a client, the ground and one rigid body, rebuilt on every reset.
 
 Bodies are built from the parameter set (box collision shape, mass, principal inertia), not URDF tags,
 so every number stays visible in `vehicles.py`. All inputs and outputs are NED / FRD (see `frames`).
@@ -13,9 +13,9 @@ import sys
 
 import numpy as np
 
+from ..models.constants import GRAVITY
 from .frames import quat_from_ned, quat_to_ned, rotation_matrix, vec_to_ned
 
-GRAVITY = 9.81
 _FLIP_BOTH = np.outer([1.0, -1.0, -1.0], [1.0, -1.0, -1.0])  # R_ned_frd = T R_pb T, elementwise
 
 
@@ -76,6 +76,11 @@ class PyBulletWorld:
         rates_world = rotation_matrix(quat) @ np.asarray(body_rates, dtype=float)
         p.resetBaseVelocity(self.body, vec_to_ned(velocity).tolist(), vec_to_ned(rates_world).tolist(),
                             physicsClientId=c)
+
+    def set_body(self, mass: float, inertia, body_size) -> None:
+        """The body the next `reset` builds (a new episode's parameter set)."""
+        self.mass, self.inertia, self.body_size = mass, list(inertia), body_size
+        self.half_height = body_size[2] / 2
 
     def set_mass(self, mass: float) -> None:
         """Change the mass, keeping the parameter set's inertia (a point payload at the centre of mass).

@@ -47,10 +47,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..models.constants import GRAVITY
+from ..models.geometry import euler_from_quat, rotation_from_euler, skew_matrix
 from .base import AlarmLatch
 from .wrapper import DetectorWrapper
 
-GRAVITY = 9.81
 N_X = 21
 POS, VEL, ETA, OMEGA, BIAS, LOE, DIST = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15),
                                          slice(15, 19), slice(19, 21))
@@ -210,7 +211,7 @@ class AugmentedEkfDetector:
         """x(0|0) from the first sample (002 assumes all states measured, eq. 28-36); no faults."""
         self._start = float(time)
         self.x[POS], self.x[VEL] = z["position"], z["velocity"]
-        self.x[ETA] = _euler(z["attitude"])
+        self.x[ETA] = euler_from_quat(z["attitude"])
         self.x[OMEGA] = z["gyro"]
 
     def predict(self, Omega: np.ndarray) -> None:
@@ -263,7 +264,7 @@ class AugmentedEkfDetector:
         Plain floats and whole blocks: numpy's per-call cost, not arithmetic, dominates at this size.
         """
         mass = self.mass
-        R = _rotation_matrix(phi, theta, psi)
+        R = rotation_from_euler(phi, theta, psi)
         a_b = v @ R                                           # R^T v, body airspeed (no wind is known)
         rotor_drag = self.k_d * float(k @ Omega)
         c = -np.array((self.d_body[0] + rotor_drag, self.d_body[1] + rotor_drag, self.d_body[2]))
@@ -274,7 +275,7 @@ class AugmentedEkfDetector:
         # d(R u)/d eta_j = n_j x (R u) with n_phi = R e1, n_theta = Rz e2, n_psi = e3 (ZYX), so the eta
         # columns are n_j x RF + RCR^T (v x n_j) = (RCR^T [v]x - [RF]x) n_j.
         N = np.array(((R[0, 0], -math.sin(psi), 0.0), (R[1, 0], math.cos(psi), 0.0), (R[2, 0], 0.0, 1.0)))
-        dv_deta = (RCRt @ _skew(v) - _skew(RF)) @ N / mass
+        dv_deta = (RCRt @ skew_matrix(v) - skew_matrix(RF)) @ N / mass
         dFb_dl = np.vstack((self.k_d * a_b[0] * Omega, self.k_d * a_b[1] * Omega, self.c_T * Omega2))
         return RF / mass + self._gravity, RCRt / mass, dv_deta, R @ dFb_dl / mass
 
@@ -357,27 +358,12 @@ def _blocks(pos, vel, eta, omega, bias, loe, dist) -> np.ndarray:
 
 
 def _measurement(z: dict, fresh: bool) -> np.ndarray:
-    parts = [_euler(z["attitude"]), z["gyro"]]
+    parts = [euler_from_quat(z["attitude"]), z["gyro"]]
     if fresh:
         parts += [z["position"], z["velocity"]]
     return np.concatenate(parts)
 
 
-def _euler(q) -> np.ndarray:
-    """ZYX Euler angles (phi, theta, psi) of a quaternion (x, y, z, w)."""
-    x, y, z, w = q
-    return np.array([math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y)),
-                     math.asin(min(max(2 * (w * y - z * x), -1.0), 1.0)),
-                     math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))])
-
-
-def _rotation_matrix(phi: float, theta: float, psi: float) -> np.ndarray:
-    """Body (FRD) -> world (NED) rotation Rz(psi) Ry(theta) Rx(phi)."""
-    cf, sf, ct, st, cp, sp = (math.cos(phi), math.sin(phi), math.cos(theta), math.sin(theta),
-                              math.cos(psi), math.sin(psi))
-    return np.array([[ct * cp, sf * st * cp - cf * sp, cf * st * cp + sf * sp],
-                     [ct * sp, sf * st * sp + cf * cp, cf * st * sp - sf * cp],
-                     [-st, sf * ct, cf * ct]])
 
 
 def _euler_kinematics(phi: float, theta: float, p: float, q: float, r: float):
@@ -391,9 +377,6 @@ def _euler_kinematics(phi: float, theta: float, p: float, q: float, r: float):
     W = np.array([[1.0, sf * tt, cf * tt], [0.0, cf, -sf], [0.0, sf / ct, cf / ct]])
     return eta_dot, d_eta, W
 
-
-def _skew(a) -> np.ndarray:
-    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
 
 
 def _wrap(angle: float) -> float:

@@ -45,10 +45,9 @@ TU Delft 2023 (seed 001). Pipeline per sample:
    being dropped ("speed_from_current" in INNOVATION_DETECTORS).
 
 The force model (`ComponentForceModel`) is 001's (eq. 6-30: fuselage, hover rotors, wing, pusher; control
-surfaces and tail neglected as 001 Sec. 4 does), written in the same generalised forms as the simulator's
-(`ftcgym/envs/quadplane_aero.py`, `ftcgym/envs/pusher.py`, copied here so that fdd imports no simulator
-code), with its coefficients taken from the vehicle parameter set passed in and then given an error
-(issue 6: a detector must not know the plant exactly): by default every aerodynamic and propulsive
+surfaces and tail neglected as 001 Sec. 4 does): the simulator's own generalised forms
+(`ftcgym.models.quadplane_aero`, `ftcgym.models.pusher`) evaluated with its coefficients taken from the vehicle
+parameter set passed in and then given an error (a detector must not know the plant exactly): by default every aerodynamic and propulsive
 coefficient is multiplied by 1 + `coefficient_error` (10%); with `error_seed` each one gets a seeded
 random sign, 1 +- error.
 
@@ -68,14 +67,16 @@ from collections import deque
 import numpy as np
 from scipy import signal
 
+from ..models.constants import GRAVITY
+from ..models.geometry import rotation_matrix, skew_matrix
+from ..models.pusher import pusher_thrust
+from ..models.quadplane_aero import fuselage_force, wing_flow
 from .base import Biquad, model_with_error
 from .pitot_detection import (CUSUM_DEFAULT, TABLE_2_DERIVATIVE, TABLE_2_NORM, PitotConfirmation,
                               PitotResidualDetector, ResidualCusum)
 from .propulsion_bayes import PropulsionModel
 from .rpm_current import RPM_CURRENT_CHECK, RpmCurrentCheck, speed_from_current
 
-GRAVITY = 9.81
-TWO_PI = 2.0 * math.pi
 #: 001 Table 1: process noise (accelerometer, gyro, wind) and measurement noise (GNSS velocity, model accel).
 TABLE_1_Q = {"accel": (1.2e-4, 6.2e-4, 3.0e-4), "gyro": (3.1e-9, 1.2e-9, 1.3e-9), "wind": (1.25e-4, 1.25e-4, 1.25e-5)}
 TABLE_1_R = (4.1e-5, 4.2e-5, 1.4e-4, 5e-5, 1e-4, 5e-4)
@@ -184,51 +185,24 @@ def butterworth_prefilter(sample_hz: float, cutoff_hz: float = PREFILTER_CUTOFF_
     return signal.butter(2, cutoff_hz, btype="low", fs=sample_hz)
 
 
-def rotation_from_quaternion(q) -> np.ndarray:
-    """Body FRD -> world NED rotation of a unit quaternion (x, y, z, w)."""
-    x, y, z, w = q / np.linalg.norm(q)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-
-
-def _cross_matrix(v) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-
-
-def _expit(x: float) -> float:
-    return 0.5 * (1.0 + math.tanh(0.5 * x))
-
 
 class ComponentForceModel:
     """001 eq. (6)-(33): specific force a = (F_fuselage + F_hover + F_wing + T_pusher) / m in body FRD.
 
-    Coefficients come from `params` (a VSQP parameter set, read by attribute), with the ERROR_COEFFICIENTS
-    multiplied by 1 + coefficient_error (error_seed None) or 1 +- coefficient_error with seeded random signs.
-    `scale` holds the factor applied to each.
+    The fuselage, wing and pusher are the simulator's own formulas (`ftcgym.models.quadplane_aero`,
+    `ftcgym.models.pusher`), evaluated on a copy of `params` whose ERROR_COEFFICIENTS are multiplied by
+    1 + coefficient_error (error_seed None) or 1 +- coefficient_error with seeded random signs
+    (`model_with_error`); `scale` holds the factor applied to each. The hover rotors are 001's own
+    simplified model (eq. 15-17), not the simulator's tilted rotors. Control surfaces and tail are
+    neglected, as 001 Sec. 4 does.
     """
 
     def __init__(self, params, coefficient_error: float = 0.10, error_seed: int | None = None):
-        self.scale, c = model_with_error(params, ERROR_COEFFICIENTS, coefficient_error, error_seed)
-        p = params
-        self.mass, self.rho = float(p.mass), float(p.air_density)
-        self.fuselage_cda = c["fuselage_drag_area"]
-        self.k_f = float(c["hover_thrust_coefficient"]) * math.cos(p.hover_tilt)
-        self.k_d = float(c["hover_drag_coefficient"])
-        self.pusher_b, self.pusher_a = c["pusher_thrust_coefficients"]
-        self.pusher_k3, self.pusher_d = float(c["pusher_thrust_k3"]), float(p.pusher_diameter)
-        self.wing_area, self.incidence = float(p.wing_area), float(p.wing_incidence)
-        self.cl0, self.cl_alpha, self.cd0 = float(c["wing_cl0"]), float(c["wing_cl_alpha"]), float(c["wing_cd0"])
-        self.k_induced = 1.0 / (math.pi * p.aspect_ratio * float(c["wing_oswald"]))   # eq. (23)
-        self.cn90, self.friction = float(c["wing_cn90"]), float(c["wing_spanwise_friction"])
-        self.stall_pos, self.stall_neg = p.wing_alpha_stall
-        self.blend = float(p.stall_blend)
-
-    def fuselage(self, u, v, w, speed):
-        """eq. (8) F_x = K_xf u^2, eq. (10) F_y = K_yfb beta V^2 (beta ~ v / V), plus a cross-flow z drag."""
-        k = 0.5 * self.rho
-        ax, ay, az = self.fuselage_cda
-        return np.array([-k * ax * u * abs(u), -k * ay * speed * v, -k * az * w * abs(w)])
+        self.scale, self.params = model_with_error(params, ERROR_COEFFICIENTS, coefficient_error, error_seed)
+        p = self.params
+        self.mass = float(p.mass)
+        self.k_f = p.hover_thrust_coefficient * math.cos(p.hover_tilt)
+        self.k_d = p.hover_drag_coefficient
 
     def hover(self, u, v, omega_h):
         """eq. (15) T_zh = K_zh omega_h^2 (summed over the rotors) and eq. (16)-(17) rotor drag F = K_h (u, v),
@@ -236,34 +210,12 @@ class ComponentForceModel:
         drag = -self.k_d * float(np.sum(np.abs(omega_h)))
         return np.array([drag * u, drag * v, -self.k_f * float(np.sum(omega_h * omega_h))])
 
-    def pusher(self, u, omega_p):
-        """eq. (13)-(14): T = rho D^4 (b n^2 + a n V / D) + K_xp3 V, n = omega / 2 pi, V = max(u, 0)."""
-        n, V, d = omega_p / TWO_PI, max(u, 0.0), self.pusher_d
-        return self.rho * d ** 4 * (self.pusher_b * n * n + self.pusher_a * n * V / d) + self.pusher_k3 * V
-
-    def wing(self, u, v, w, skew):
-        """eq. (18)-(30) generalised as the simulator's wing: lift from the chordwise flow V_c = u sin L - v cos L
-        (eq. 27), C_L = C_L0 + C_La alpha (eq. 21, corrected), C_D = C_D0 + C_L^2 / (pi A e) (eq. 23), blended
-        into a flat plate past the stall; resolving on the skewed chord gives eq. (30)'s side force."""
-        sl, cl_ = math.sin(skew), math.cos(skew)
-        v_chord, v_span = u * sl - v * cl_, u * cl_ + v * sl
-        alpha = (math.atan2(w, v_chord) + self.incidence + math.pi) % TWO_PI - math.pi
-        attached = _expit(self.blend * (self.stall_pos - alpha)) * _expit(self.blend * (alpha - self.stall_neg))
-        cl_lin = self.cl0 + self.cl_alpha * alpha
-        sa, ca = math.sin(alpha), math.cos(alpha)
-        cl = attached * cl_lin + (1.0 - attached) * self.cn90 * sa * ca
-        cd = self.cd0 + attached * self.k_induced * cl_lin * cl_lin + (1.0 - attached) * self.cn90 * sa * sa
-        k = 0.5 * self.rho * self.wing_area * math.hypot(v_chord, w)
-        f_chord, f_normal = k * (cl * w - cd * v_chord), k * (-cl * v_chord - cd * w)   # eq. (18)-(19)
-        f_span = -0.5 * self.rho * self.wing_area * self.friction * abs(v_span) * v_span
-        return np.array([f_chord * sl + f_span * cl_, -f_chord * cl_ + f_span * sl, f_normal])
-
     def specific_force(self, air_velocity_body, omega_p: float, omega_h, skew: float) -> np.ndarray:
         """eq. (31)-(33): [a_x, a_y, a_z] = (F_f + F_w + F_h + T_p e_x) / m, m/s^2."""
-        u, v, w = (float(x) for x in air_velocity_body)
-        speed = math.sqrt(u * u + v * v + w * w)
-        force = self.fuselage(u, v, w, speed) + self.wing(u, v, w, skew) + self.hover(u, v, np.asarray(omega_h))
-        force[0] += self.pusher(u, omega_p)
+        vel = tuple(float(x) for x in air_velocity_body)
+        force = (np.array(fuselage_force(self.params, vel)) + np.array(wing_flow(self.params, vel, skew)[0])
+                 + self.hover(vel[0], vel[1], np.asarray(omega_h)))
+        force[0] += pusher_thrust(self.params, omega_p, vel[0])
         return force / self.mass
 
 
@@ -281,10 +233,10 @@ def ekf_step(x, P, dt, inputs, z, h, H, Q, R):
     f = np.zeros(6)
     f[:3] = -np.cross(omega, vel) + Rot.T @ np.array([0.0, 0.0, GRAVITY]) + a     # eq. (4); eq. (5): wind f = 0
     F = np.zeros((6, 6))
-    F[:3, :3] = -_cross_matrix(omega)
+    F[:3, :3] = -skew_matrix(omega)
     L = np.zeros((6, 9))
     L[:3, :3] = np.eye(3)                       # accelerometer noise w_a
-    L[:3, 3:6] = _cross_matrix(vel)             # gyro noise: -(w_omega x v) = v x w_omega
+    L[:3, 3:6] = skew_matrix(vel)             # gyro noise: -(w_omega x v) = v x w_omega
     L[3:, 6:] = np.eye(3)                       # wind random walk w_mu
     x_pred = x + f * dt                                            # eq. (52), corrected
     Phi = np.eye(6) + F * dt
@@ -531,7 +483,7 @@ class AirdataEkfDetector:
 
     def _ekf_cycle(self, s: np.ndarray, time: float) -> None:
         """One EKF step on the filtered sample `s`, with the covariances of the sensors' current state."""
-        a, omega, Rot = s[0:3], s[3:6], rotation_from_quaternion(s[6:10])
+        a, omega, Rot = s[0:3], s[3:6], rotation_matrix(s[6:10] / np.linalg.norm(s[6:10]))
         v_gnd, omega_p, omega_h, skew = s[10:13], float(s[13]), s[14:18], float(s[18])
         model = self.model
         Q = self.Q.copy()

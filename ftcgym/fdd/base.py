@@ -6,6 +6,7 @@ or a row of a recorded log) and a time stamp, so the same object runs online in 
 """
 from __future__ import annotations
 
+import dataclasses
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -76,12 +77,21 @@ class AlarmLatch:
 
 
 def model_with_error(params, names, coefficient_error: float = 0.10, error_seed: int | None = None):
-    """A detector's copy of the plant coefficients `names` read from `params` (issue 6: a detector must not
-    know the plant exactly): each multiplied by 1 + coefficient_error (error_seed None) or by 1 +-
-    coefficient_error with a seeded random sign. Returns (scale, coefficients), dicts keyed by name."""
+    """The detector's copy of a parameter set: `params` with the coefficients `names` multiplied by
+    1 + coefficient_error (error_seed None) or by 1 +- coefficient_error with a seeded random sign, since a
+    detector must not know the plant exactly. The detector then evaluates the plant's own formulas
+    (`ftcgym.models`) on this copy. Returns (scale, params_with_error); scale is keyed by name."""
     if not (np.isfinite(coefficient_error) and -1.0 < coefficient_error < 1.0):
         raise ValueError(f"coefficient_error: must be in (-1, 1), got {coefficient_error!r}")
     rng = None if error_seed is None else np.random.default_rng(error_seed)
     scale = {name: 1.0 + coefficient_error * (1.0 if rng is None else float(rng.choice((-1.0, 1.0))))
              for name in names}
-    return scale, {name: np.asarray(getattr(params, name), dtype=float) * scale[name] for name in names}
+    scaled = {name: _scaled(getattr(params, name), scale[name]) for name in names}
+    return scale, dataclasses.replace(params, **scaled)
+
+
+def _scaled(value, factor: float):
+    """A scalar or a tuple of coefficients times `factor`, as plain floats."""
+    if np.ndim(value):
+        return tuple(float(v) * factor for v in value)
+    return float(value) * factor

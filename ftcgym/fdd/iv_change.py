@@ -121,11 +121,11 @@ import math
 import numpy as np
 from scipy import signal
 
-from ..geometry import rotation_matrix
+from ..models.constants import GRAVITY
+from ..models.geometry import euler_from_quat, rotation_matrix
 from .base import AlarmLatch
 from .wrapper import DetectorWrapper
 
-GRAVITY = 9.81
 READ_KEYS = ("gyro", "accel", "reference_position", "reference_velocity", "reference_yaw")
 #: yaw reaction-torque sign per rotor r1..r4 (004 eq. 7, DESIGN.md); fdd does not import envs.
 YAW_SIGNS = (1.0, -1.0, 1.0, -1.0)
@@ -536,7 +536,7 @@ class SixDofResidual:
     def update(self, readings: dict) -> np.ndarray:
         """One step; returns [p - p_s, q - q_s, a_x - a_x_s, a_y - a_y_s]."""
         gyro, accel, omega = (np.array(_finite(readings, key)) for key in ("gyro", "accel", "rotor_speed"))
-        phi, theta, _ = _euler(_finite(readings, "attitude"))
+        phi, theta, _ = euler_from_quat(_finite(readings, "attitude"))
         if self.omega_s is None:   # start from the measured state
             self.omega_s = gyro.copy()
             R = rotation_matrix(_finite(readings, "attitude"))
@@ -563,11 +563,3 @@ def _finite(readings: dict, key: str) -> list:
     if not math.isfinite(sum(values)):   # any NaN or inf makes the sum non-finite
         raise ValueError(f"iv_change: reading {key!r} is not finite: {values}")
     return values
-
-
-def _euler(q) -> list:
-    """ZYX Euler angles (roll, pitch, yaw) of a quaternion (x, y, z, w)."""
-    x, y, z, w = q
-    return [math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y)),
-            math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x)))),
-            math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))]

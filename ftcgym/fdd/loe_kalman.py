@@ -20,6 +20,7 @@ import numpy as np
 from scipy import signal
 from scipy.special import erf
 
+from ..models.constants import GRAVITY
 from .base import AlarmLatch, Biquad
 
 #: 000 eq. (9): signs of each rotor's contribution to p_dot, q_dot and a_z for rotors r1..r4 of Fig. 2.
@@ -35,7 +36,6 @@ TABLE_II = {"G": (100e-6, 100e-6, 5e-6), "Q": 0.1, "R": 1.0, "k_threshold": 0.25
 #: so P_fail cannot pass 0.9 until the rotor speeds have diverged (~160 ms in our simulator, beyond 000's
 #: reported delays). Q dT gave 47-60 ms on tuning seeds 1000-1007 (see the issue's closing note).
 Q_PER_SAMPLE = TABLE_II["Q"] * TABLE_II["step_size"]
-GRAVITY = 9.81
 VARIANCE_CEILING = 1e6  # published k_var is clipped here (the unobservable direction's variance grows without bound)
 
 

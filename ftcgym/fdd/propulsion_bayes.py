@@ -92,13 +92,13 @@ import math
 
 import numpy as np
 
+from ..models.pusher import TWO_PI, pusher_aero_torque
 from .base import AlarmLatch, model_with_error
 from .wrapper import DetectorWrapper
 
 MODES = ("no_fault", "propeller_icing", "viscous_friction", "static_friction")   # 003 Sec. II-B, m = 0..3
 HEALTH_PRIOR = (2.0 / 3.0, 1.0 / 3.0)           # 003 eq. (32): first row of Pi^h
 FAULT_PRIOR = (0.25, 0.25, 0.25, 0.25)          # 003 eq. (33): first row of Pi^f
-TWO_PI = 2.0 * math.pi
 #: parameters of the vehicle set the detector's model takes (each erring by coefficient_error)
 ERROR_COEFFICIENTS = ("pusher_torque_coefficients", "pusher_motor_constant", "pusher_inertia",
                       "pusher_viscous_friction", "pusher_zero_load_current")
@@ -106,20 +106,21 @@ PHASES = ("waiting", "calibrating", "detecting", "isolating", "isolated")
 
 
 class PropulsionModel:
-    """The detector's copy of 003 eq. (1)-(5), its coefficients scaled by 1 + coefficient_error (error_seed
-    None) or 1 +- coefficient_error with seeded random signs. rho and D are exact (atmosphere, geometry)."""
+    """The detector's copy of 003 eq. (1)-(5): the plant's pusher formulas (`ftcgym.models.pusher`) on the
+    parameter set with ERROR_COEFFICIENTS scaled by 1 + coefficient_error (error_seed None) or 1 +-
+    coefficient_error with seeded random signs (`model_with_error`). rho and D are exact (atmosphere,
+    geometry)."""
 
     def __init__(self, params, coefficient_error: float = 0.10, error_seed: int | None = None):
-        self.scale, c = model_with_error(params, ERROR_COEFFICIENTS, coefficient_error, error_seed)
-        self.rho, self.D = float(params.air_density), float(params.pusher_diameter)
-        self.cq = c["pusher_torque_coefficients"]
-        self.k_e, self.Theta = float(c["pusher_motor_constant"]), float(c["pusher_inertia"])
-        self.x_star = np.array([1.0, float(c["pusher_viscous_friction"]), float(c["pusher_zero_load_current"])])
+        self.scale, self.params = model_with_error(params, ERROR_COEFFICIENTS, coefficient_error, error_seed)
+        p = self.params
+        self.rho, self.D, self.cq = float(p.air_density), float(p.pusher_diameter), p.pusher_torque_coefficients
+        self.k_e, self.Theta = p.pusher_motor_constant, p.pusher_inertia
+        self.x_star = np.array([1.0, p.pusher_viscous_friction, p.pusher_zero_load_current])
 
     def nominal_torque(self, omega, V):
         """Q_a* of 003 eq. (2)-(4) (theta_1 = 1), expanded in n = omega / 2 pi so it is finite at omega = 0."""
-        n, V, d = np.asarray(omega) / TWO_PI, np.maximum(V, 0.0), self.D
-        return self.rho * d ** 5 * (self.cq[0] * n * n + self.cq[1] * n * V / d + self.cq[2] * V * V / (d * d))
+        return pusher_aero_torque(self.params, omega, V)
 
     def regressors(self, omega, V) -> np.ndarray:
         """C = [Q_a*, omega, k_e] of 003 eq. (9)/(11), one row per sample."""

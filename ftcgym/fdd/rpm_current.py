@@ -36,7 +36,8 @@ from scipy import signal
 
 from .base import Biquad
 from .pitot_detection import ThresholdCriterion
-from .propulsion_bayes import TWO_PI, PropulsionModel
+from ..models.pusher import TWO_PI
+from .propulsion_bayes import PropulsionModel
 
 
 def speed_from_current(model: PropulsionModel, current: float, airspeed: float) -> float:

@@ -1,6 +1,5 @@
-"""Stable-Baselines3 training and evaluation of recovery policies (issue 7).
+"""Stable-Baselines3 training and evaluation of recovery policies on the task envs of `ftcgym.task_envs`.
 
-- `tasks`: training envs (`RotorLossRecoveryEnv`, `ftcgym/RotorLossRecovery-v0`) and their features
 - `config`: task configs in the style of RL Zoo hyperparameter files (`load_config`)
 - `train`: `train.train(config, out)`: vectorised envs, VecNormalize, checkpoints, evaluation, manifest
 - `policy`: `LearnedPolicy`, a saved model behind the benchmark's policy interface
@@ -9,7 +8,6 @@
 Stable-Baselines3 and torch (the `train` extra) are imported only by `train`, `policy`, `evaluate`
 and `callbacks`.
 """
-from ftcgym.training.tasks import RotorLossRecoveryEnv, recovery_features
 
 
 def __getattr__(name):
@@ -23,5 +21,4 @@ def __getattr__(name):
     return getattr(import_module(f"ftcgym.training.{homes[name]}"), name)
 
 
-__all__ = ["LearnedPolicy", "RotorLossRecoveryEnv", "TrainConfig", "evaluate_model", "load_config",
-           "recovery_features"]
+__all__ = ["LearnedPolicy", "TrainConfig", "evaluate_model", "load_config"]

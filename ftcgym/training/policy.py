@@ -23,14 +23,17 @@ import json
 
 import numpy as np
 
-from ftcgym.training.airspeed_task import ENV_ID as AIRSPEED_ENV_ID, LearnedAirspeedPolicy
-from ftcgym.agents import flies_airspeed, is_quadplane
-from ftcgym.agents.quadrotor_control import UP
-from ftcgym.agents.spin_recovery import thrust_axis_reference_for
-from ftcgym.geometry import rotation_matrix
+from ftcgym.agents import flies_airspeed, is_quadplane, make_policy
+from ftcgym.agents.base import UP
+from ftcgym.agents.spin_recovery import SpinRecoveryController, thrust_axis_reference_for
+from ftcgym.models.geometry import rotation_matrix
+from ftcgym.task_envs.airspeed_source import DETECTOR as AIRSPEED_DETECTOR
+from ftcgym.task_envs.airspeed_source import ENV_ID as AIRSPEED_ENV_ID
+from ftcgym.task_envs.airspeed_source import airspeed_features, blend, to_weight
+from ftcgym.task_envs.rotor_loss_recovery import (DETECTOR, N_FEATURES, recovery_features, rotor_order,
+                                                  to_motor_command)
 from ftcgym.training.saved import (MANIFEST_FILE, MODEL_FILE, NORMALIZER_FILE, SavedModelPolicy,  # noqa: F401
-                                  load_normalizer, model_files)
-from ftcgym.training.tasks import DETECTOR, N_FEATURES, recovery_features, rotor_order, to_motor_command
+                                   load_normalizer, model_files)
 
 TASK_ENV_ID = "ftcgym/RotorLossRecovery-v0"
 
@@ -57,10 +60,8 @@ class LearnedPolicy(SavedModelPolicy):
                 raise ValueError(f"LearnedPolicy: the model takes {shape} observations; recovery_features gives "
                                  f"({N_FEATURES},); a model of the earlier 38-feature layout must be retrained "
                                  f"(`ftcgym train`)")
-            from ftcgym.agents import make_policy
             if env is None:
                 raise ValueError("LearnedPolicy: a rotor-loss-recovery model needs the env (for its nominal controller)")
-            from ftcgym.agents import SpinRecoveryController
             self.nominal = make_policy("nominal", env)
             self.omega_max = env.unwrapped.params.omega_max
             self._shadow = SpinRecoveryController(env.unwrapped.params, env.unwrapped.agent_hz)
@@ -104,6 +105,39 @@ class LearnedPolicy(SavedModelPolicy):
             self._action = to_motor_command(self.predict(features))[rotor_order(status)]
         self._steps += 1
         return self._action
+
+
+class LearnedAirspeedPolicy(SavedModelPolicy):
+    """A model trained on `ftcgym/AirspeedSource-v0` as a benchmark policy on QuadPlaneAutopilot-v0 (with
+    the `airdata_ekf` detector): the pitot reading until the detector is armed, then every `action_repeat`
+    steps the model's deterministic weight w on `airspeed_features` (normalised with the saved VecNormalize
+    statistics), and at each step (1 - w) pitot + w EKF airspeed: the task's features and decision rate.
+    Build it with `LearnedAirspeedPolicy.load(path, env)` or from a live model (the evaluation callback)."""
+
+    detector = AIRSPEED_DETECTOR
+    DEFAULT_ENV_ID = AIRSPEED_ENV_ID
+
+    def __init__(self, model, normalizer=None, env_id: str = AIRSPEED_ENV_ID, task_kwargs: dict | None = None, env=None):
+        self.model, self.normalizer, self.env_id = model, normalizer, env_id
+        self.action_repeat = int((task_kwargs or {}).get("action_repeat", 10))
+        self.reset()
+
+    def reset(self, obs: dict | None = None, info: dict | None = None) -> None:
+        self.engaged, self._steps, self.weight = False, 0, 0.0
+
+    def act(self, obs: dict, info: dict) -> np.ndarray:
+        status = info.get("fdd", {}).get(AIRSPEED_DETECTOR)
+        if status is None:
+            raise ValueError(f"{type(self).__name__} needs the env wrapped with the {AIRSPEED_DETECTOR!r} detector "
+                             f"(e.g. `ftcgym bench --detector {AIRSPEED_DETECTOR}`)")
+        if not self.engaged and not status["detection_armed"]:
+            return np.array([obs["pitot_airspeed"][0]], dtype=np.float32)
+        self.engaged = True
+        if self._steps % self.action_repeat == 0:
+            self.weight = to_weight(self.predict(airspeed_features(obs, {**status, "time": info["time"]},
+                                                                   self.weight)))
+        self._steps += 1
+        return blend(obs, self.weight)
 
 
 # env id of a training task -> the policy class that flies its models in the benchmark (`load_policy`)

@@ -1,4 +1,4 @@
-"""Trained policies shipped with ftcgym (issue 7 part 4): one folder per task, each holding what
+"""Trained policies shipped with ftcgym: one folder per task, each holding what
 `ftcgym train` wrote (`model.zip`, `vecnormalize.pkl`, `manifest.json` with the training command, seed,
 steps, wall time and commit). The benchmark policies `learned-spin` and `learned-airspeed` load them."""
 from __future__ import annotations
@@ -29,3 +29,13 @@ def load_shipped(policy: str, env):
         raise ImportError(f"policy {policy!r} needs stable-baselines3 and torch: pip install -e '.[train]' "
                           f"({error})") from error
     return load_policy(shipped_path(policy), env)
+
+
+def learned_spin(env):
+    """The benchmark policy `learned-spin` (catalogue entry of `ftcgym.agents.POLICIES`)."""
+    return load_shipped("learned-spin", env)
+
+
+def learned_airspeed(env):
+    """The benchmark policy `learned-airspeed` (catalogue entry of `ftcgym.agents.POLICIES`)."""
+    return load_shipped("learned-airspeed", env)

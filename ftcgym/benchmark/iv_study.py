@@ -1,6 +1,6 @@
-"""Acceptance runs and the comparison plot for `IvChangeDetector` (004 Sec. 5.1 scenario, issue 3).
+"""Acceptance runs and the comparison plot for `IvChangeDetector` (004 Sec. 5.1 scenario).
 
-    python -m ftcgym.fdd.plots_iv --seeds 100-109 --workers 1 --plot /tmp/iv_change.png
+    python -m ftcgym.benchmark.iv_study --seeds 100-109 --workers 1 --plot /tmp/iv_change.png
 
 Flies the square task (with and without 90 deg heading changes) in light Dryden turbulence and a
 (1, -1, 0) m/s mean wind, mass 0.5 -> 1 kg between 40 and 42 s, with the nominal controller, and
@@ -8,8 +8,6 @@ prints each seed's alarm time. The alarm rule (a CUSUM of the IV increments) and
 tuned on env seeds 1000-1019 (recorded episodes replayed offline: the detector does not act on the flight);
 report on others (held-out: 100-109 here, or `ftcgym bench --seed 100`, whose episode seeds are hashed
 from the base seed and so differ from both).
-A script, not part of the detector: it drives the simulator, so its imports stay inside the functions
-(`fdd` itself imports no simulator code, DESIGN.md).
 """
 from __future__ import annotations
 
@@ -17,15 +15,17 @@ import argparse
 import time as wallclock
 from multiprocessing import Pool
 
+import gymnasium as gym
 import numpy as np
+
+import ftcgym  # noqa: F401  (registers the env ids)
+from ftcgym.agents import make_policy
+from ftcgym.fdd.iv_change import IvChangeDetector, LowPassBank, SixDofResidual, iv_change_wrapper
 
 ONSET, RAMP, SECONDS = 40.0, 2.0, 60.0
 
 
 def make_scenario(heading_changes: bool):
-    import gymnasium as gym
-
-    import ftcgym  # noqa: F401  (registers the env ids)
     task = {"name": "square", "altitude": 8.0}
     if heading_changes:
         task["heading_changes"] = True
@@ -37,9 +37,6 @@ def make_scenario(heading_changes: bool):
 
 def fly(seed: int, heading_changes: bool, record: bool = False, **detector_kwargs) -> dict:
     """One episode with the detector in the loop; `record` keeps J and the 6-DOF residual for a plot."""
-    from ftcgym.agents import make_policy
-    from ftcgym.fdd.iv_change import LowPassBank, SixDofResidual, iv_change_wrapper
-
     env = iv_change_wrapper(make_scenario(heading_changes), **detector_kwargs)
     detector, dt = env.detector, 1.0 / env.unwrapped.agent_hz
     six_dof, smooth = SixDofResidual(env.unwrapped.params, dt), LowPassBank(0.5, 4, dt)
@@ -100,8 +97,6 @@ def plot(seed: int, path: str, heading_changes: bool = False) -> str:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from ftcgym.fdd.iv_change import IvChangeDetector
 
     row = fly(seed, heading_changes, record=True)
     t, J, res, ratio = row["trace"][:, 0], row["trace"][:, 1:3], row["trace"][:, 3:7], row["trace"][:, 7]

@@ -1,7 +1,7 @@
 """`ftcgym/QuadPlaneAutopilot-v0`: the quad-plane flown along its mission by the built-in autopilot; the action
 is the airspeed (m/s) the autopilot schedules on (wing skew, surface effectiveness, wing lift, pusher loop;
 `agents.quadplane_autopilot`). A policy thus chooses or blends the airspeed source: the pitot reading, a
-synthetic estimate (issue 6's air-data EKF), or anything in between.
+synthetic estimate (the `airdata_ekf` detector's), or anything in between.
 
 Same kwargs, observation and `info` contract as QuadPlane-v0, plus the observation `mission_phase` (index in
 `PHASES`) and `info["mission"]` = {"phase", "airspeed_used", "cruise_airspeed"}. Action: Box(0, 60, (1,)) m/s, clipped; a
@@ -18,7 +18,7 @@ import numpy as np
 from gymnasium import spaces
 
 from ..agents.quadplane_autopilot import PHASES, QuadPlaneAutopilot
-from .quadplane import CRASH_PENALTY, QuadPlaneEnv
+from ..envs.quadplane import CRASH_PENALTY, QuadPlaneEnv
 
 MAX_AIRSPEED_ACTION = 60.0   # m/s
 MAX_AIRSPEED_OFFSET = 6.0    # m/s, largest cruise-setpoint change a detector may ask for (stays above stall, below 24 m/s)
@@ -28,6 +28,7 @@ class QuadPlaneAutopilotEnv(gym.Env):
     """QuadPlane-v0 with the autopilot inside; see the module docstring."""
 
     metadata = QuadPlaneEnv.metadata
+    controls = "airspeed"          # what the action commands (QuadrotorEnv: "rotors", QuadPlaneEnv: "actuators")
 
     def __init__(self, **kwargs):
         self.plane = QuadPlaneEnv(**kwargs)
@@ -39,6 +40,7 @@ class QuadPlaneAutopilotEnv(gym.Env):
                                               "mission_phase": spaces.Box(0.0, len(PHASES) - 1.0, (1,), np.float64)})
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """Start a mission; `options` as QuadPlane-v0's (`faults`, `wind`, `vehicle_overrides` for one episode)."""
         super().reset(seed=seed)
         obs, info = self.plane.reset(seed=seed, options=options)
         self.autopilot.reset(obs, info)

@@ -16,6 +16,8 @@ import math
 
 import numpy as np
 
+from .geometry import cross3
+
 HALF_PI = 0.5 * math.pi
 
 
@@ -90,9 +92,6 @@ def _in_plane_force(half_rho_area, v_chord, v_normal, cl, cd):
     return k * (cl * v_normal - cd * v_chord), k * (-cl * v_chord - cd * v_normal)
 
 
-def _cross(a, b):
-    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
-
 
 def _add(acc, vec, scale=1.0):
     acc[0] += scale * vec[0]
@@ -111,8 +110,9 @@ def fuselage_force(params, vel):
             -half_rho * az * vel[2] * abs(vel[2]))
 
 
-def wing_wrench(params, vel, rates, skew, aileron):
-    """Skewed wing, 001 eq. (27)-(30) generalised, plus its pitching moment, roll damping and ailerons.
+def wing_flow(params, vel, skew):
+    """The skewed wing's force, 001 eq. (27)-(30) generalised, and the flow quantities its moments need:
+    (force [3] body FRD N, chord and span directions, chordwise speed V_c, normal speed w, C_L, C_m).
 
     The lift comes from the chordwise component V_c = u sin L - v cos L (eq. 27: V_n = V_a sin L), so the
     force scales with sin^2 L as eq. (28)-(29); resolving the section forces on the skewed chord also gives
@@ -131,9 +131,16 @@ def wing_wrench(params, vel, rates, skew, aileron):
     f_chord, f_normal = _in_plane_force(half_rho * params.wing_area, v_chord, w, cl, cd)
     f_span = -half_rho * params.wing_area * params.wing_spanwise_friction * abs(v_span) * v_span
     force = [f_chord * chord[0] + f_span * span[0], f_chord * chord[1] + f_span * span[1], f_normal]
+    return force, chord, span, v_chord, w, cl, cm
+
+
+def wing_wrench(params, vel, rates, skew, aileron):
+    """The skewed wing's force (`wing_flow`) plus its pitching moment, roll damping and ailerons."""
+    force, chord, span, v_chord, w, cl, cm = wing_flow(params, vel, skew)
+    half_rho = 0.5 * params.air_density
     q_in = half_rho * (v_chord * v_chord + w * w)
     ac = tuple(params.wing_ac_offset * c for c in chord)
-    moment = list(_cross(ac, force))
+    moment = list(cross3(ac, force))
     _add(moment, span, q_in * params.wing_area * params.wing_chord * cm)      # nose-up about the span axis
     # Roll damping about the chord axis: linear Cl_p term in flow, flat-plate strips when still (hover).
     rate_chord = rates[0] * chord[0] + rates[1] * chord[1]
@@ -150,7 +157,7 @@ def wing_wrench(params, vel, rates, skew, aileron):
 
 
 def _tail_local_velocity(vel, rates, position):
-    rot = _cross(rates, position)
+    rot = cross3(rates, position)
     return (vel[0] + rot[0], vel[1] + rot[1], vel[2] + rot[2])
 
 
@@ -178,7 +185,7 @@ def tail_wrench(params, vel, rates, elevator, rudder, downwash_term):
     fx, fz = _in_plane_force(half_rho * params.htail_area, uh, wh, cl, cd) if speed_sq > 0.0 else (0.0, 0.0)
     f_h = (fx, 0.0, fz)
     _add(force, f_h)
-    _add(moment, _cross(r_h, f_h))
+    _add(moment, cross3(r_h, f_h))
     # Vertical fin in the body x-y plane (its "normal" axis is y).
     r_v = (-params.tail_arm, 0.0, -0.5 * params.vtail_height)
     uv, vv, _ = _tail_local_velocity(vel, rates, r_v)
@@ -190,7 +197,7 @@ def tail_wrench(params, vel, rates, elevator, rudder, downwash_term):
     fx, fy = _in_plane_force(half_rho * params.vtail_area, uv, vv, cl, cd)
     f_v = (fx, fy, 0.0)
     _add(force, f_v)
-    _add(moment, _cross(r_v, f_v))
+    _add(moment, cross3(r_v, f_v))
     return force, moment
 
 
@@ -217,13 +224,13 @@ def hover_rotor_wrench(params, vel, rates, skew, omega, effectiveness):
             continue
         pos, axis = positions[i], axes[i]
         thrust = eff * k_f * w * w
-        rot = _cross(rates, pos)
+        rot = cross3(rates, pos)
         hub = (vel[0] + rot[0], vel[1] + rot[1], vel[2] + rot[2])
         axial = hub[0] * axis[0] + hub[1] * axis[1] + hub[2] * axis[2]
         drag = -k_d * eff * abs(w)
         f = tuple(thrust * axis[j] + drag * (hub[j] - axial * axis[j]) for j in range(3))
         _add(force, f)
-        _add(moment, _cross(pos, f))
+        _add(moment, cross3(pos, f))
         _add(moment, axis, -params.hover_yaw_signs[i] * eff * c_q * w * w)
     return force, moment
 

@@ -36,9 +36,10 @@ import numpy as np
 from gymnasium import spaces
 
 from ftcgym.agents.quadplane_autopilot import PHASES
-from ftcgym.benchmark.metrics import AIRSPEED_TOLERANCE
-from ftcgym.training.saved import SavedModelPolicy
-from ftcgym.training.tasks import interval
+from ftcgym.criteria import AIRSPEED_TOLERANCE
+from ftcgym.fdd import wrap_with_detector
+from ftcgym.models.wind import random_mean_wind
+from ftcgym.task_envs.rotor_loss_recovery import interval
 
 ENV_ID = "ftcgym/AirspeedSource-v0"
 DETECTOR = "airdata_ekf"
@@ -177,23 +178,16 @@ class AirspeedSourceEnv(gym.Env):
     # ------------------------------------------------------------------------------------ internals
     def _fly_to_armed(self) -> bool:
         """Draw an episode and fly it on the pitot until the detector is armed; False if it never was."""
-        from ftcgym.envs.faults import QUADPLANE_KINDS, parse_faults
-        from ftcgym.envs.quadplane import SENSOR_KEYS
-        from ftcgym.envs.wind import DrydenWind
-
         rng = self.np_random
         env = self._simulator()
-        plane = env.unwrapped.plane
         kind = str(rng.choice(self.fault_kinds, p=self.fault_weights))
         onset = float(rng.uniform(*self.onset))
-        speed, direction = rng.uniform(*self.wind_speed), rng.uniform(0.0, 2.0 * math.pi)
-        mean_wind = [float(speed * math.cos(direction)), float(speed * math.sin(direction)), 0.0]
-        plane.wind = DrydenWind.from_config({"mean": mean_wind, "turbulence": self.turbulence}, plane.dt)
+        mean_wind = random_mean_wind(rng, self.wind_speed)
         rate = float(rng.uniform(*self.incipient_rate)) if kind == "incipient" else None
         spec = {"zero": {"target": "zero"}, "stuck": {"target": "stuck"}, "incipient": {"rate": rate}}.get(kind)
-        faults = [] if spec is None else [{"kind": "pitot_blockage", "time": onset, **spec}]
-        plane.fault_specs = parse_faults(faults, 4, SENSOR_KEYS, QUADPLANE_KINDS)
-        obs, info = env.reset(seed=int(rng.integers(2**31)))
+        options = {"wind": {"mean": mean_wind, "turbulence": self.turbulence},
+                   "faults": [] if spec is None else [{"kind": "pitot_blockage", "time": onset, **spec}]}
+        obs, info = env.reset(seed=int(rng.integers(2**31)), options=options)
         while not info["fdd"][DETECTOR]["detection_armed"]:
             obs, _, terminated, truncated, info = env.step(np.array([obs["pitot_airspeed"][0]], dtype=np.float32))
             if terminated or truncated:
@@ -206,7 +200,6 @@ class AirspeedSourceEnv(gym.Env):
 
     def _simulator(self) -> gym.Env:
         if self.env is None:
-            from ftcgym.fdd import wrap_with_detector
             env = gym.make("ftcgym/QuadPlaneAutopilot-v0", task=self.task, sensors=self.sensors,
                            max_episode_seconds=self.max_episode_seconds)
             self.env = wrap_with_detector(DETECTOR, env.unwrapped, **self.detector_kwargs)
@@ -223,36 +216,3 @@ class AirspeedSourceEnv(gym.Env):
     @staticmethod
     def _status(info: dict) -> dict:
         return {**info["fdd"][DETECTOR], "time": info["time"]}
-
-
-class LearnedAirspeedPolicy(SavedModelPolicy):
-    """A model trained on `ftcgym/AirspeedSource-v0` as a benchmark policy on QuadPlaneAutopilot-v0 (with
-    the `airdata_ekf` detector): the pitot reading until the detector is armed, then every `action_repeat`
-    steps the model's deterministic weight w on `airspeed_features` (normalised with the saved VecNormalize
-    statistics), and at each step (1 - w) pitot + w EKF airspeed: the task's features and decision rate.
-    Build it with `LearnedAirspeedPolicy.load(path, env)` or from a live model (the evaluation callback)."""
-
-    detector = DETECTOR
-    DEFAULT_ENV_ID = ENV_ID
-
-    def __init__(self, model, normalizer=None, env_id: str = ENV_ID, task_kwargs: dict | None = None, env=None):
-        self.model, self.normalizer, self.env_id = model, normalizer, env_id
-        self.action_repeat = int((task_kwargs or {}).get("action_repeat", 10))
-        self.reset()
-
-    def reset(self, obs: dict | None = None, info: dict | None = None) -> None:
-        self.engaged, self._steps, self.weight = False, 0, 0.0
-
-    def act(self, obs: dict, info: dict) -> np.ndarray:
-        status = info.get("fdd", {}).get(DETECTOR)
-        if status is None:
-            raise ValueError(f"{type(self).__name__} needs the env wrapped with the {DETECTOR!r} detector "
-                             f"(e.g. `ftcgym bench --detector {DETECTOR}`)")
-        if not self.engaged and not status["detection_armed"]:
-            return np.array([obs["pitot_airspeed"][0]], dtype=np.float32)
-        self.engaged = True
-        if self._steps % self.action_repeat == 0:
-            self.weight = to_weight(self.predict(airspeed_features(obs, {**status, "time": info["time"]},
-                                                                   self.weight)))
-        self._steps += 1
-        return blend(obs, self.weight)

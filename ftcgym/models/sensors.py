@@ -16,8 +16,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .constants import GRAVITY
+
 GYRO_LIMIT = np.deg2rad(2000.0)   # rad/s, MPU-6050 full scale (000 Fig. 5)
-ACCEL_LIMIT = 16.0 * 9.81         # m/s^2, +-16 g full scale
+ACCEL_LIMIT = 16.0 * GRAVITY        # m/s^2, +-16 g full scale
 _BLOCK = 512
 
 

@@ -252,3 +252,9 @@ class DrydenWind:
     @property
     def dt(self) -> float:
         return self._dt
+
+
+def random_mean_wind(rng: np.random.Generator, speed_range) -> list[float]:
+    """A horizontal mean wind (NED, m/s): speed uniform in `speed_range` = (lo, hi), direction uniform."""
+    speed, direction = rng.uniform(*speed_range), rng.uniform(0.0, 2.0 * np.pi)
+    return [float(speed * np.cos(direction)), float(speed * np.sin(direction)), 0.0]

@@ -20,11 +20,18 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 TWO_PI = 2.0 * math.pi
 
 
-def _revs(omega: float) -> float:
+def _revs(omega):
     return omega / TWO_PI
+
+
+def _forward(speed):
+    """Axial airspeed with flow from behind taken as 0 (floats or numpy arrays)."""
+    return max(speed, 0.0) if isinstance(speed, float) else np.maximum(speed, 0.0)
 
 
 def pusher_thrust(params, omega: float, axial_speed: float) -> float:
@@ -34,9 +41,9 @@ def pusher_thrust(params, omega: float, axial_speed: float) -> float:
     return params.air_density * d ** 4 * (b * n * n + a * n * v / d) + params.pusher_thrust_k3 * v
 
 
-def pusher_aero_torque(params, omega: float, axial_speed: float, theta_1: float = 1.0) -> float:
-    """Q_a, N m, 003 eq. (2)-(5): theta_1 rho n^2 D^5 C_Q(J)."""
-    n, v, d = _revs(omega), max(axial_speed, 0.0), params.pusher_diameter
+def pusher_aero_torque(params, omega, axial_speed, theta_1: float = 1.0):
+    """Q_a, N m, 003 eq. (2)-(5): theta_1 rho n^2 D^5 C_Q(J); floats, or numpy arrays of speeds."""
+    n, v, d = _revs(omega), _forward(axial_speed), params.pusher_diameter
     cq0, cq1, cq2 = params.pusher_torque_coefficients
     return theta_1 * params.air_density * d ** 5 * (cq0 * n * n + cq1 * n * v / d + cq2 * v * v / (d * d))
 

@@ -70,7 +70,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .vehicles import GRAVITY, named_params
+from .constants import GRAVITY
+from .quadrotor import named_params
 
 RPM = math.pi / 30.0   # rad/s per RPM
 INCH = 0.0254          # m

@@ -12,6 +12,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .constants import GRAVITY
+
+def rotational_drag_moment(linear: np.ndarray, quadratic: np.ndarray, rates: np.ndarray) -> np.ndarray:
+    """Aerodynamic damping moment -(D1 + D2 |w|) w per body axis: linear as 004 eq. (11) and quadratic as
+    Sun et al.'s Bebop2 model (simpleAeroModel.m: MDrag = -sign(w) rotDrag w^2)."""
+    return -(linear + quadratic * np.abs(rates)) * rates
+
+
 #: yaw reaction-torque sign per rotor (004 eq. 7; DESIGN.md): + means +z (FRD) torque on the body.
 YAW_SIGNS = (1.0, -1.0, 1.0, -1.0)
 
@@ -49,12 +57,10 @@ class QuadrotorParams:
         return np.array([[h, -b, 0.0], [h, b, 0.0], [-h, b, 0.0], [-h, -b, 0.0]])
 
     def rotational_drag_moment(self, rates) -> np.ndarray:
-        """Aerodynamic damping moment -(D1 + D2 |w|) w per body axis: linear as 004 eq. (11) and quadratic as
-        Sun et al.'s Bebop2 model (simpleAeroModel.m: MDrag = -sign(w) rotDrag w^2)."""
-        rates = np.asarray(rates, dtype=float)
-        linear = np.asarray(self.rotational_drag, dtype=float)
-        quadratic = np.asarray(self.rotational_drag_quadratic, dtype=float)
-        return -(linear + quadratic * np.abs(rates)) * rates
+        """The aerodynamic damping moment on the body at body rates `rates` (`rotational_drag_moment`)."""
+        return rotational_drag_moment(np.asarray(self.rotational_drag, dtype=float),
+                                      np.asarray(self.rotational_drag_quadratic, dtype=float),
+                                      np.asarray(rates, dtype=float))
 
     @property
     def hover_omega(self) -> float:
@@ -68,8 +74,6 @@ class QuadrotorParams:
         c = self.thrust_coefficient
         return np.array([c * self.arm_y / ixx, c * self.arm_x / iyy, c / self.mass])
 
-
-GRAVITY = 9.81  # m/s^2
 
 _SUN = "SihaoSun/INDI_Quadrotor_FTC Bebop2Model (VEHICLES.md)"
 

@@ -41,7 +41,11 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from ftcgym.geometry import rotation_matrix
+from ftcgym.agents import SpinRecoveryController, make_policy, policy_view
+from ftcgym.fdd import wrap_with_detector
+from ftcgym.models.geometry import rotation_matrix
+from ftcgym.models.tasks import make_task
+from ftcgym.models.wind import random_mean_wind
 
 DETECTOR = "loe_kalman"
 N_FEATURES = 37
@@ -194,18 +198,14 @@ class RotorLossRecoveryEnv(gym.Env):
     # ------------------------------------------------------------------------------------ internals
     def _fly_to_alarm(self) -> bool:
         """Draw an episode and fly the nominal controller until the alarm; False if none came."""
-        from ftcgym.agents import make_policy
-        from ftcgym.benchmark.runner import policy_view
-        from ftcgym.envs.wind import DrydenWind
-
         rng = self.np_random
         self.env = self._simulator(self.vehicles[rng.integers(len(self.vehicles))], int(rng.integers(len(self.tasks))))
-        base = self.env.unwrapped
-        base.wind = DrydenWind.from_config(_draw_wind(self.winds[rng.integers(len(self.winds))], rng), base.dt)
+        wind = _draw_wind(self.winds[rng.integers(len(self.winds))], rng)
         rotor = int(rng.choice(self.failed_rotors))
         onset = float(rng.uniform(*self.onset))
-        base.fault_specs = _rotor_loss_spec(rotor, onset)
-        obs, info = self.env.reset(seed=int(rng.integers(2**31)))
+        options = {"wind": wind, "faults": [{"kind": "rotor_loss", "target": rotor, "time": onset}]}
+        obs, info = self.env.reset(seed=int(rng.integers(2**31)), options=options)
+        base = self.env.unwrapped
         nominal = make_policy("nominal", self.env)
         nominal.reset(obs, policy_view(info, nominal))
         while not info["fdd"][DETECTOR]["alarm"]:
@@ -218,7 +218,6 @@ class RotorLossRecoveryEnv(gym.Env):
         self._episode = {"vehicle": base.params.name, "task": base.task.name,
                          "failed_rotor": rotor, "onset_time": onset, "alarm_time": info["time"]}
         if self.expert:
-            from ftcgym.agents import SpinRecoveryController
             self._expert_controller = SpinRecoveryController(base.params, base.agent_hz)
             self._expert_controller.engage(info["fdd"][DETECTOR]["isolated"], obs)
             self._label_expert()
@@ -232,7 +231,6 @@ class RotorLossRecoveryEnv(gym.Env):
 
     def _simulator(self, vehicle: str, task: int) -> gym.Env:
         if (vehicle, task) not in self._envs:
-            from ftcgym.fdd import wrap_with_detector
             env = gym.make("ftcgym/Quadrotor-v0", vehicle=vehicle, task=self.tasks[task], agent_hz=self.agent_hz,
                            sensors=self.sensors, max_episode_seconds=self.onset[1] + 2.0 + self.horizon_seconds,
                            faults=[{"kind": "rotor_loss", "target": 0, "time": self.onset[1]}])
@@ -251,21 +249,12 @@ class RotorLossRecoveryEnv(gym.Env):
         return info
 
 
-def _rotor_loss_spec(rotor: int, onset: float):
-    """The simulator's fault schedule for this episode (parsed the way its constructor parses `faults`)."""
-    from ftcgym.envs.faults import parse_faults
-    from ftcgym.envs.quadrotor import SENSOR_KEYS
-    return parse_faults([{"kind": "rotor_loss", "target": rotor, "time": onset}], 4, SENSOR_KEYS)
-
-
 def _draw_wind(spec, rng) -> dict | None:
     """A wind dict for DrydenWind.from_config; {"mean_speed": [lo, hi]} draws a horizontal mean wind."""
     if not isinstance(spec, dict) or "mean_speed" not in spec:
         return spec
-    low, high = interval(spec["mean_speed"], "wind.mean_speed")
-    speed, heading = rng.uniform(low, high), rng.uniform(0.0, 2.0 * np.pi)
     rest = {key: value for key, value in spec.items() if key != "mean_speed"}
-    return {**rest, "mean": [speed * math.cos(heading), speed * math.sin(heading), 0.0]}
+    return {**rest, "mean": random_mean_wind(rng, interval(spec["mean_speed"], "wind.mean_speed"))}
 
 
 def interval(value, name: str, positive: bool = False) -> tuple[float, float]:
@@ -284,7 +273,6 @@ def interval(value, name: str, positive: bool = False) -> tuple[float, float]:
 
 def _tasks(value) -> list:
     """The tasks to draw from: one task (a name or a dict) or a non-empty list of them, each checked now."""
-    from ftcgym.envs.tasks import make_task
     tasks = list(value) if isinstance(value, (list, tuple)) else [value]
     if not tasks:
         raise ValueError("task: expected a task or a non-empty list of tasks, got []")

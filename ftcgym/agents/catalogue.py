@@ -1,0 +1,124 @@
+"""The policy catalogue: built-in policies by name, installed plug-ins and MODULE:ATTR (`ftcgym.registry`).
+
+A policy entry is a class or factory called with the env (wrapped or not) that returns an object with
+`reset(obs, info)` and `act(obs, info)` (`base.Policy`). The built-in entries are the factories below;
+`learned-spin` and `learned-airspeed` live in `ftcgym.training.shipped` and load only when asked for.
+"""
+from __future__ import annotations
+
+from ftcgym.registry import Entry, Registry
+
+from ..models.vsqp import VsqpParams
+from .airspeed_policies import (AirspeedSwitchPolicy, AutopilotPolicy, OracleAirspeedPolicy, PitotOnlyPolicy,
+                                SyntheticOnlyPolicy)
+from .base import Policy, check_policy
+from .quadrotor_control import NominalController
+from .spin_policies import OracleSpinPolicy, SpinAfterAlarmPolicy
+
+_HERE = "ftcgym.agents.catalogue"
+POLICIES = Registry("policy", "ftcgym.policies", {
+    "nominal": Entry(f"{_HERE}:nominal",
+                     "cascaded PID position/attitude/rate controller with model-based mixer; fault-unaware"),
+    "ftc-spin": Entry(f"{_HERE}:ftc_spin",
+                      "nominal until the loe_kalman alarm, then relaxed-hover spin recovery (scheduled LQR of the "
+                      "primary axis) without the isolated rotor; needs the loe_kalman detector"),
+    "oracle-spin": Entry(f"{_HERE}:oracle_spin",
+                         "upper bound: spin recovery from the true fault onset (benchmark oracle info), not flyable"),
+    "autopilot": Entry(f"{_HERE}:autopilot",
+                       "quad-plane mission autopilot on QuadPlane-v0's actuators, scheduled on the pitot reading"),
+    "pitot-only": Entry(f"{_HERE}:pitot_only",
+                        "QuadPlaneAutopilot-v0: feeds the autopilot the pitot reading, faulty or not"),
+    "oracle-airspeed": Entry(f"{_HERE}:oracle_airspeed",
+                             "QuadPlaneAutopilot-v0 upper bound: feeds the true airspeed (benchmark oracle info)"),
+    "airspeed-switch": Entry(f"{_HERE}:airspeed_switch",
+                             "QuadPlaneAutopilot-v0: the pitot reading until the first airdata_ekf pitot alarm "
+                             "(Table 2 or CUSUM), then the EKF airspeed; needs the airdata_ekf detector"),
+    "synthetic-only": Entry(f"{_HERE}:synthetic_only",
+                            "QuadPlaneAutopilot-v0: always the airdata_ekf EKF airspeed; needs the airdata_ekf "
+                            "detector"),
+    "learned-spin": Entry("ftcgym.training.shipped:learned_spin",
+                          "shipped SB3 policy (task rotor-loss-recovery): nominal until the loe_kalman alarm, then "
+                          "motor commands from the trained model; needs the loe_kalman detector"),
+    "learned-airspeed": Entry("ftcgym.training.shipped:learned_airspeed",
+                              "shipped SB3 policy (task airspeed-source) on QuadPlaneAutopilot-v0: the airspeed it "
+                              "feeds the autopilot from the pitot and detector outputs; needs the airdata_ekf "
+                              "detector"),
+})
+
+
+def make_policy(name: str, env) -> Policy:
+    """The policy `name` (a built-in name, an installed plug-in or MODULE:ATTR) for `env`."""
+    return check_policy(POLICIES.load(name)(env), name)
+
+
+def is_quadplane(env) -> bool:
+    """Whether an env (wrapped or not) flies the quad-plane."""
+    return isinstance(env.unwrapped.params, VsqpParams)
+
+
+def flies_airspeed(env) -> bool:
+    """Whether an env (wrapped or not) is QuadPlaneAutopilot-v0, whose action is the airspeed the autopilot uses."""
+    return getattr(env.unwrapped, "controls", None) == "airspeed"
+
+
+def _quadrotor(env, name: str):
+    base = env.unwrapped
+    if is_quadplane(env):
+        raise ValueError(f"policy: {name!r} flies the quadrotor, not {type(base).__name__}; accepted: "
+                         f"{_accepted(env)}")
+    return base
+
+
+def _quadplane(env, name: str, airspeed: bool):
+    base = env.unwrapped
+    if not is_quadplane(env) or flies_airspeed(env) != airspeed:
+        raise ValueError(f"policy: {name!r} does not fly {type(base).__name__}; accepted: {_accepted(env)}")
+    return base
+
+
+def _accepted(env) -> list[str]:
+    if not is_quadplane(env):
+        return ["nominal", "ftc-spin", "oracle-spin", "learned-spin"]
+    if flies_airspeed(env):
+        return ["pitot-only", "oracle-airspeed", "airspeed-switch", "synthetic-only", "learned-airspeed"]
+    return ["autopilot"]
+
+
+def nominal(env) -> NominalController:
+    base = _quadrotor(env, "nominal")
+    return NominalController(base.params, base.agent_hz)
+
+
+def ftc_spin(env) -> SpinAfterAlarmPolicy:
+    base = _quadrotor(env, "ftc-spin")
+    return SpinAfterAlarmPolicy(base.params, base.agent_hz)
+
+
+def oracle_spin(env) -> OracleSpinPolicy:
+    base = _quadrotor(env, "oracle-spin")
+    return OracleSpinPolicy(base.params, base.agent_hz)
+
+
+def autopilot(env) -> AutopilotPolicy:
+    base = _quadplane(env, "autopilot", airspeed=False)
+    return AutopilotPolicy(base.params, base.agent_hz, base.task)
+
+
+def pitot_only(env) -> PitotOnlyPolicy:
+    _quadplane(env, "pitot-only", airspeed=True)
+    return PitotOnlyPolicy()
+
+
+def oracle_airspeed(env) -> OracleAirspeedPolicy:
+    _quadplane(env, "oracle-airspeed", airspeed=True)
+    return OracleAirspeedPolicy()
+
+
+def airspeed_switch(env) -> AirspeedSwitchPolicy:
+    _quadplane(env, "airspeed-switch", airspeed=True)
+    return AirspeedSwitchPolicy()
+
+
+def synthetic_only(env) -> SyntheticOnlyPolicy:
+    _quadplane(env, "synthetic-only", airspeed=True)
+    return SyntheticOnlyPolicy()

@@ -1,0 +1,85 @@
+"""Names for the things a user plugs in: policies, detectors and scenarios.
+
+A name resolves, in this order, to
+1. a built-in entry of the catalogue ("module:attr", imported only when asked for, so no package imports
+   the code of a floor above it);
+2. an entry point of an installed package, in the catalogue's group (`ftcgym.policies`,
+   `ftcgym.detectors`, `ftcgym.scenarios`), e.g. in the package's pyproject.toml:
+   `[project.entry-points."ftcgym.policies"] my-policy = "mypkg.policies:MyPolicy"`;
+3. a "MODULE:ATTR" reference to an importable module, e.g. `mypkg.policies:MyPolicy`.
+
+Anything else is a ValueError that says what was tried and what is accepted.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from importlib import import_module, metadata
+
+
+@dataclass(frozen=True)
+class Entry:
+    """A built-in catalogue entry: where the object lives and one line on what it is."""
+
+    target: str                 # "module:attr"
+    description: str = ""
+
+
+class Registry:
+    """The catalogue of one kind of plug-in (see the module docstring)."""
+
+    def __init__(self, kind: str, group: str, builtins: dict[str, Entry]):
+        self.kind, self.group, self.builtins = kind, group, dict(builtins)
+
+    def installed(self) -> dict[str, metadata.EntryPoint]:
+        """Entry points of installed packages in this catalogue's group, by name."""
+        return {ep.name: ep for ep in metadata.entry_points(group=self.group)}
+
+    def names(self) -> list[str]:
+        """Built-in names, then installed ones."""
+        return list(self.builtins) + [name for name in self.installed() if name not in self.builtins]
+
+    def __iter__(self):
+        return iter(self.names())
+
+    def __contains__(self, name) -> bool:
+        return name in self.names()
+
+    def describe(self, name: str) -> str:
+        entry = self.builtins.get(name)
+        return entry.description if entry else f"installed plug-in ({self.installed()[name].value})"
+
+    def load(self, name: str):
+        """The object `name` stands for; ValueError naming what was tried and what is accepted."""
+        if not isinstance(name, str) or not name:
+            raise ValueError(f"{self.kind}: expected a name or MODULE:ATTR, got {name!r}")
+        if name in self.builtins:
+            return load_reference(self.builtins[name].target, self.kind)
+        installed = self.installed()
+        if name in installed:
+            try:
+                return installed[name].load()
+            except (ImportError, AttributeError) as error:
+                raise ValueError(f"{self.kind} {name!r}: the entry point {installed[name].value!r} of group "
+                                 f"{self.group!r} could not be loaded ({error})") from None
+        if ":" in name:
+            return load_reference(name, self.kind)
+        raise ValueError(f"{self.kind}: unknown name {name!r}; tried the built-in names and the entry points of "
+                         f"group {self.group!r}; accepted: {self.names()} or MODULE:ATTR "
+                         f"(an importable module and an attribute of it)")
+
+
+def load_reference(reference: str, kind: str):
+    """The attribute ATTR of module MODULE for "MODULE:ATTR" (ATTR may be dotted: "mod:Class.factory")."""
+    module_name, _, attribute = reference.partition(":")
+    if not module_name or not attribute:
+        raise ValueError(f"{kind}: {reference!r} is not of the form MODULE:ATTR")
+    try:
+        target = import_module(module_name)
+    except ImportError as error:
+        raise ValueError(f"{kind}: {reference!r}: module {module_name!r} could not be imported ({error}); "
+                         f"is it on PYTHONPATH or installed?") from None
+    for part in attribute.split("."):
+        if not hasattr(target, part):
+            raise ValueError(f"{kind}: {reference!r}: module {module_name!r} has no attribute {attribute!r}")
+        target = getattr(target, part)
+    return target
