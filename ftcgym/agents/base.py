@@ -21,7 +21,9 @@ class Policy(Protocol):
     - `uses_true_airspeed` (False): an airspeed oracle; its `info` also holds `oracle_airspeed` (m/s).
     - `thrust_axis_reference` (straight up): the NED unit vector where the policy wants the thrust axis; the
       rotor-loss recovery criterion measures the thrust axis against it.
-    - `detector` (None): the name of the detector whose `info["fdd"]` entry the policy reads.
+
+    By convention a policy that reads a detector names it in `detector` (e.g. "loe_kalman"): the key of
+    `info["fdd"]` it reads. The runner does not act on it; the scenario or `--detector` wraps the env.
     """
 
     def reset(self, obs: dict, info: dict) -> None: ...

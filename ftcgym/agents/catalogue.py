@@ -48,7 +48,11 @@ POLICIES = Registry("policy", "ftcgym.policies", {
 
 def make_policy(name: str, env) -> Policy:
     """The policy `name` (a built-in name, an installed plug-in or MODULE:ATTR) for `env`."""
-    return check_policy(POLICIES.load(name)(env), name)
+    target = POLICIES.load(name)
+    if not callable(target):
+        raise TypeError(f"policy {name!r}: a {type(target).__name__} is neither a class nor a factory called with "
+                        f"the env")
+    return check_policy(target(env), name)
 
 
 def is_quadplane(env) -> bool:

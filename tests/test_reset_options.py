@@ -1,0 +1,89 @@
+"""`reset(options=...)`: faults, wind and vehicle overrides for one episode, validated as the make-time kwargs;
+the next reset without options flies the make-time configuration again."""
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import ftcgym  # noqa: F401
+
+ROTOR_LOSS = [{"kind": "rotor_loss", "target": 1, "time": 0.1}]
+
+
+def fly(env, seconds, seed=3, options=None):
+    obs, info = env.reset(seed=seed, options=options)
+    hover = np.full(env.action_space.shape, 0.5, dtype=np.float32)
+    observations = [obs]
+    while info["time"] < seconds - 1e-9:
+        obs, _, _, _, info = env.step(hover)
+        observations.append(obs)
+    return observations, info
+
+
+def test_quadrotor_flies_the_fault_of_the_options_then_its_own_configuration_again():
+    env = gym.make("ftcgym/Quadrotor-v0", max_episode_seconds=2.0)
+    _, info = fly(env, 0.2, options={"faults": ROTOR_LOSS})
+    assert info["fault"]["active"] and info["fault"]["kind"] == "rotor_loss" and info["fault"]["target"] == 1
+    assert info["truth"]["rotor_effectiveness"].tolist() == [1.0, 0.0, 1.0, 1.0]
+    plain, info = fly(env, 0.2)
+    assert not info["fault"]["active"] and info["faults"] == []
+    assert info["truth"]["rotor_effectiveness"].tolist() == [1.0, 1.0, 1.0, 1.0]
+    fresh, _ = fly(gym.make("ftcgym/Quadrotor-v0", max_episode_seconds=2.0), 0.2)
+    assert all(np.array_equal(a[key], b[key]) for a, b in zip(plain, fresh) for key in a)   # bit-identical
+    env.close()
+
+
+def test_options_replace_the_make_time_faults_wind_and_vehicle_for_one_episode():
+    env = gym.make("ftcgym/Quadrotor-v0", faults=ROTOR_LOSS, wind={"mean": [1.0, 0.0, 0.0]})
+    _, info = env.reset(seed=0, options={"faults": [], "wind": {"mean": [0.0, 2.0, 0.0]},
+                                         "vehicle_overrides": {"mass": 0.5}})
+    assert info["faults"] == [] and info["truth"]["wind"].tolist() == [0.0, 2.0, 0.0]
+    assert info["truth"]["mass"] == 0.5
+    _, info = env.reset(seed=0)
+    assert info["faults"][0]["kind"] == "rotor_loss" and info["truth"]["wind"].tolist() == [1.0, 0.0, 0.0]
+    assert info["truth"]["mass"] == pytest.approx(0.374)
+    env.close()
+
+
+def test_quadplane_flies_the_fault_of_the_options_then_its_own_configuration_again():
+    env = gym.make("ftcgym/QuadPlane-v0", max_episode_seconds=2.0)
+    observations, info = fly(env, 0.5, options={"faults": [{"kind": "gnss", "time": 0.2}],
+                                                "wind": {"mean": [3.0, 0.0, 0.0]},
+                                                "vehicle_overrides": {"mass": 7.0}})
+    assert info["fault"]["active"] and info["fault"]["kind"] == "gnss"
+    assert np.all(observations[-1]["gnss_velocity"] == 0.0)           # the GNSS reads zero after the onset
+    assert info["truth"]["wind"].tolist() == [3.0, 0.0, 0.0] and info["truth"]["mass"] == 7.0
+    observations, info = fly(env, 0.5)
+    assert not info["fault"]["active"] and info["faults"] == []
+    assert np.all(observations[-1]["gnss_velocity"] != 0.0)           # noisy readings: no dropout
+    assert info["truth"]["wind"].tolist() == [0.0, 0.0, 0.0] and info["truth"]["mass"] == 6.5
+    env.close()
+
+
+def test_the_autopilot_env_passes_options_to_its_quadplane():
+    env = gym.make("ftcgym/QuadPlaneAutopilot-v0")
+    _, info = env.reset(seed=1, options={"faults": [{"kind": "pitot_blockage", "time": 30.0}]})
+    assert info["faults"][0]["kind"] == "pitot_blockage"
+    _, info = env.reset(seed=1)
+    assert info["faults"] == []
+    env.close()
+
+
+@pytest.mark.parametrize("env_id", ["ftcgym/Quadrotor-v0", "ftcgym/QuadPlane-v0"])
+@pytest.mark.parametrize("options, message", [
+    ({"fault": []}, r"reset options: unknown key\(s\) \['fault'\]; accepted: \['faults', 'wind', 'vehicle_overrides'\]"),
+    ({"faults": [{"kind": "loe", "target": 9}]}, r"reset options: faults\[0\].target: 9 is not accepted for loe"),
+    ({"wind": {"speed": 3}}, r"reset options: wind config: unknown key\(s\) \['speed'\]"),
+    ({"vehicle_overrides": {"mas": 1.0}}, r"reset options: vehicle_overrides: unknown field\(s\) \['mas'\]"),
+])
+def test_bad_options_are_rejected_as_the_make_time_kwargs_are(env_id, options, message):
+    env = gym.make(env_id)
+    with pytest.raises(ValueError, match=message):
+        env.reset(seed=0, options=options)
+    env.close()
+
+
+def test_overrides_that_widen_the_observation_space_belong_to_gym_make():
+    env = gym.make("ftcgym/Quadrotor-v0")
+    with pytest.raises(ValueError, match=r"widen the bounds of observation 'rotor_speed'.*pass these overrides to gym.make"):
+        env.reset(seed=0, options={"vehicle_overrides": {"omega_max": 2000.0}})
+    env.close()
