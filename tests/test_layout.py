@@ -15,7 +15,6 @@ FLOORS = {"registry": 0, "criteria": 0, "models": 0,
           "task_envs": 3,
           "benchmark": 4,
           "training": 5,
-          "perf": 5,
           "cli": 6}
 
 
@@ -53,7 +52,7 @@ def upward_imports() -> list[str]:
     for path in sorted(PACKAGE.rglob("*.py")):
         source = module_name(path)
         here = part_of(source)
-        for target in imported_modules(path):
+        for target in sorted(imported_modules(path)):
             there = part_of(target)
             if there not in FLOORS or here == there or here == "":
                 continue

@@ -2,7 +2,7 @@
 import math
 
 from ftcgym.fdd import DETECTORS
-from ftcgym.perf import detector_costs
+from ftcgym.cli.perf import detector_costs
 
 
 def test_every_detector_gets_a_finite_cost_per_update():

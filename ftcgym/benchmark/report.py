@@ -65,13 +65,12 @@ def markdown_table(summary: list[dict]) -> str:
                      for cells in [header, ["---"] * len(header), *rows])
 
 
-def write_report(out_dir, summary: list[dict], episodes: list[dict], config: dict) -> list[Path]:
-    """Write results.json, episodes.csv, one PNG per scenario and report.md; return their paths."""
+def write_report(out_dir, results: dict, episodes: list[dict]) -> list[Path]:
+    """Write results.json, episodes.csv, the plots and report.md of a run's `results` document
+    (`results.results_document`); `episodes` are the rows with their trajectories, for the plots."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    rows = [{field: episode[field] for field in EPISODE_FIELDS} for episode in episodes]
-    paths = [write_json(out_dir / "results.json", {"summary": summary, "episodes": rows, "config": config}),
-             write_csv(out_dir / "episodes.csv", rows)]
+    paths = [write_json(out_dir / "results.json", results), write_csv(out_dir / "episodes.csv", results["episodes"])]
     plots = []
     for name in dict.fromkeys(episode["scenario"] for episode in episodes):
         of_scenario = _of_scenario(episodes, name)
@@ -81,7 +80,7 @@ def write_report(out_dir, summary: list[dict], episodes: list[dict], config: dic
             plots.append(plot_event(out_dir / f"{name}-event.png", event))
         if any(e["fault_onset"] is not None for e in of_scenario):
             plots.append(plot_latencies(out_dir / f"{name}-latency.png", name, of_scenario))
-    paths.append(write_markdown(out_dir / "report.md", summary, config, plots))
+    paths.append(write_markdown(out_dir / "report.md", results["summary"], results["config"], plots))
     return paths + plots
 
 

@@ -34,10 +34,13 @@ CASES = (
 )
 
 
-def add_arguments(parser) -> None:
+def add_parser(subparsers) -> None:
+    parser = subparsers.add_parser("perf", help="measure simulation speed and memory",
+                                   description=__doc__.split("\n\n")[1].replace("\n", " "))
     parser.add_argument("--steps", type=int, default=20000, help="env steps per case (default 20000)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    parser.set_defaults(run=run)
 
 
 def measure(env_id: str, env_kwargs: dict, actor: str, steps: int, seed: int) -> dict:
@@ -115,7 +118,7 @@ def _rss_mib() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def main(args) -> int:
+def run(args, argv: list[str] | None = None) -> int:
     measure(QUADROTOR, {}, "nominal", 200, args.seed)  # warm-up: one-time allocations must not read as growth
     measure(QUADPLANE, {}, "autopilot", 200, args.seed)
     rows = []
@@ -142,10 +145,3 @@ def main(args) -> int:
     for name, us in costs.items():
         print(f"  {name:12} {us:8.1f}")
     return 0
-
-
-if __name__ == "__main__":
-    import argparse
-    parser = argparse.ArgumentParser()
-    add_arguments(parser)
-    raise SystemExit(main(parser.parse_args()))

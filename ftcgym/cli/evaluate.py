@@ -1,0 +1,36 @@
+"""`ftcgym evaluate`: the benchmark's summary table for a model saved by `ftcgym train`."""
+from __future__ import annotations
+
+import time
+
+from .common import json_object, positive_int, scenario
+
+
+def add_parser(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "evaluate", help="run the benchmark on a trained model",
+        description="Fly a model saved by `ftcgym train` (its folder or .zip) through a benchmark scenario "
+                    "as a policy, deterministic actions, and print the summary table of `ftcgym bench`.")
+    parser.add_argument("model", metavar="MODEL", help="the training output folder or a model .zip in it")
+    parser.add_argument("--scenario", default="quad-rotor-loss-hover", type=scenario, metavar="NAME",
+                        help="benchmark scenario (default: quad-rotor-loss-hover)")
+    parser.add_argument("--episodes", type=positive_int, metavar="N",
+                        help="episodes (default: the scenario's own)")
+    parser.add_argument("--seed", type=int, default=0, metavar="S", help="base seed (default: 0)")
+    parser.add_argument("--env-kwargs", type=json_object, default={}, metavar="JSON",
+                        help="JSON object merged (top-level keys) into the scenario's gym.make kwargs")
+    parser.set_defaults(run=run)
+
+
+def run(args, argv: list[str]) -> int:
+    from ftcgym.benchmark.report import format_table
+    from ftcgym.training.evaluate import evaluate_model
+
+    started = time.perf_counter()
+    try:
+        summary, episodes = evaluate_model(args.model, args.scenario, args.episodes, args.seed, args.env_kwargs)
+    except FileNotFoundError as error:
+        raise SystemExit(f"ftcgym evaluate: {error}") from None
+    print(format_table(summary))
+    print(f"\n{len(episodes)} episodes in {time.perf_counter() - started:.1f} s")
+    return 0

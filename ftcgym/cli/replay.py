@@ -1,0 +1,21 @@
+"""`ftcgym replay`: a fault detector run over a recorded flight log (`ftcgym.fdd.replay`)."""
+from __future__ import annotations
+
+
+def add_parser(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "replay", help="run a fault detector over a recorded flight log",
+        description="Run a detector over every sample of a flight log (PX4 ULog .ulg, or an ftcgym recording "
+                    ".npz/.csv) and print its alarms: times from the log's start, targets in its actuator order.")
+    parser.add_argument("log", metavar="LOG", help="the flight log")
+    parser.add_argument("--detector", required=True, metavar="NAME",
+                        help="detector to run; replay sets up loe_kalman for a log (others cannot replay yet)")
+    parser.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    parser.add_argument("--rate", type=float, default=250.0, metavar="HZ",
+                        help="rate a ULog is resampled to (default: 250); recordings keep their own")
+    parser.set_defaults(run=run)
+
+
+def run(args, argv: list[str]) -> int:
+    from ftcgym.fdd.replay import main  # imported here: only replay needs pyulog
+    return main(args)

@@ -1,0 +1,56 @@
+"""`ftcgym train`: train a recovery policy with Stable-Baselines3 (`ftcgym.training`); SB3 and torch are
+imported only when it runs."""
+from __future__ import annotations
+
+import argparse
+import os
+import shlex
+
+from .common import non_negative_int, positive_int
+
+
+def add_parser(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "train", help="train a recovery policy with Stable-Baselines3",
+        description="Train a policy from a task config (YAML in the style of RL Zoo hyperparameter files). "
+                    "Writes the model, its VecNormalize statistics, checkpoints, evaluations and a manifest "
+                    "to --out.")
+    parser.add_argument("--config", required=True, metavar="FILE_OR_TASK",
+                        help="a YAML config file or a built-in task (ftcgym/training/configs: rotor-loss-recovery, "
+                             "airspeed-source, airspeed-source-finetune)")
+    parser.add_argument("--algo", type=str.upper, choices=("PPO", "SAC"),
+                        help="algorithm (default: the config's default_algo)")
+    parser.add_argument("--n-envs", type=positive_int, metavar="N", help="parallel envs (default: the config's)")
+    parser.add_argument("--total-steps", type=non_negative_int, metavar="N",
+                        help="env steps to train for after any pre-training (default: the config's n_timesteps; "
+                             "0 with a `pretrain` section: imitation only)")
+    parser.add_argument("--seed", type=int, metavar="S", help="seed (default: the config's, else 0)")
+    parser.add_argument("--out", metavar="DIR", help="output directory (default: train_out/<task>-<algo>-seed<S>)")
+    parser.add_argument("--init-from", metavar="MODEL",
+                        help="start from a saved model (a training output folder or .zip, e.g. a shipped policy's "
+                             "folder) instead of the config's pre-training: fine-tuning")
+    parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=True,
+                        help="show a progress bar (default: on)")
+    parser.set_defaults(run=run)
+
+
+def run(args, argv: list[str]) -> int:
+    from ftcgym.training.config import load_config
+    try:
+        config = load_config(args.config, args.algo, args.n_envs, args.total_steps, args.seed)
+    except ValueError as error:
+        raise SystemExit(f"ftcgym train: {error}") from None
+    from ftcgym.training.train import train
+
+    out = args.out or os.path.join("train_out", f"{config.task}-{config.algo}-seed{config.seed}")
+    manifest = train(config, out, progress=args.progress, command=shlex.join(["ftcgym", *argv]),
+                     init_from=args.init_from)
+    if "pretrain" in manifest:
+        last = manifest["pretrain"]["iterations"][-1]
+        final = f", final fit action mse {last['final_fit']['action_mse']:.4f}" if "final_fit" in last else ""
+        print(f"imitation pre-training: {len(manifest['pretrain']['iterations'])} DAgger iterations, "
+              f"{last['samples']} samples in {manifest['pretrain']['wall_time_s']:.1f} s, "
+              f"action mse {last['action_mse']:.4f}{final}")
+    print(f"{manifest['steps']} steps in {manifest['wall_time_s']:.1f} s ({manifest['steps_per_s'] or 0:.0f} steps/s, "
+          f"{config.n_envs} envs); wrote model.zip, manifest.json to {out}")
+    return 0
