@@ -49,6 +49,7 @@ import numpy as np
 
 from ..models.constants import GRAVITY
 from ..models.geometry import euler_from_quat, rotation_from_euler, skew_matrix
+from . import kalman
 from .base import AlarmLatch
 from .wrapper import DetectorWrapper
 
@@ -139,8 +140,7 @@ class AugmentedEkfDetector:
         # Eq. (28)-(36) plus the gyro, ordered so that a step without fresh position/velocity is a prefix:
         # y = [eta (3), gyro (3) | p (3), v (3)].
         r = _override(self.R_SIGMA, r_sigma, "r_sigma")
-        self._r = np.repeat([r["attitude"], r["gyro"], r["position"], r["velocity"]], 3) ** 2
-        self.R_full = np.diag(self._r)
+        self.R_full = np.diag(np.repeat([r["attitude"], r["gyro"], r["position"], r["velocity"]], 3) ** 2)
         self.H_full = np.zeros((12, N_X))
         for row, block in ((0, ETA), (3, OMEGA), (3, BIAS), (6, POS), (9, VEL)):
             self.H_full[row:row + 3, block] = np.eye(3)
@@ -222,8 +222,7 @@ class AugmentedEkfDetector:
         self.x = self.x + dt * f + (0.5 * dt) * (Fdt @ f)    # eq. (6)
         self.x[PSI] = _wrap(self.x[PSI])
         Phi = self._I + Fdt + 0.5 * (Fdt @ Fdt)              # eq. (8), to second order
-        P = Phi @ self.P @ Phi.T + self.Q                    # eq. (7)
-        self.P = 0.5 * (P + P.T)                             # rounding must not accumulate asymmetry
+        self.P = kalman.predict(self.P, self.Q, Phi)         # eq. (7)
 
     def correct(self, y: np.ndarray) -> None:
         """Eq. (13)-(18) for y = H x + v: [eta, gyro] or [eta, gyro, p, v] (H constant, so eq. 15 is exact)."""
@@ -231,14 +230,9 @@ class AugmentedEkfDetector:
         H, R = self.H_full[:m], self.R_full[:m, :m]
         gamma = y - H @ self.x                               # eq. (17)
         gamma[2] = _wrap(gamma[2])                           # yaw innovation across +-pi
-        PHt = self.P @ H.T
-        S = H @ PHt + R                                      # eq. (14), V in the paper
-        K = PHt @ np.linalg.inv(S)                           # eq. (13)
-        self.x = self.x + K @ gamma                          # eq. (16)
+        # eq. (13)-(16), and eq. (18): the Joseph form
+        self.x, self.P, S, _ = kalman.update(self.x, self.P, gamma, H, R)
         self.x[PSI] = _wrap(self.x[PSI])
-        A = self._I - K @ H
-        P = A @ self.P @ A.T + (K * self._r[:m]) @ K.T       # eq. (18), Joseph form (R is diagonal)
-        self.P = 0.5 * (P + P.T)
         self.gamma, self.S = gamma, S
 
     def dynamics(self, x: np.ndarray, Omega: np.ndarray, Omega_dot: np.ndarray):

@@ -71,6 +71,7 @@ from ..models.constants import GRAVITY
 from ..models.geometry import rotation_matrix, skew_matrix
 from ..models.pusher import pusher_thrust
 from ..models.quadplane_aero import fuselage_force, wing_flow
+from . import kalman
 from .base import Biquad, model_with_error
 from .pitot_detection import (CUSUM_DEFAULT, TABLE_2_DERIVATIVE, TABLE_2_NORM, PitotConfirmation,
                               PitotResidualDetector, ResidualCusum)
@@ -239,15 +240,10 @@ def ekf_step(x, P, dt, inputs, z, h, H, Q, R):
     L[:3, 3:6] = skew_matrix(vel)             # gyro noise: -(w_omega x v) = v x w_omega
     L[3:, 6:] = np.eye(3)                       # wind random walk w_mu
     x_pred = x + f * dt                                            # eq. (52), corrected
-    Phi = np.eye(6) + F * dt
-    P_pred = Phi @ P @ Phi.T + L @ Q @ L.T                         # eq. (53)
-    Hx = H(x_pred)
+    P_pred = kalman.predict(P, L @ Q @ L.T, np.eye(6) + F * dt)    # eq. (53)
     y = z - h(x_pred)                                              # eq. (54)
-    S = Hx @ P_pred @ Hx.T + R                                     # eq. (55), M = I
-    K = np.linalg.solve(S, Hx @ P_pred).T                          # eq. (56)
-    x_new = x_pred + K @ y                                         # eq. (57)
-    P_new = (np.eye(6) - K @ Hx) @ P_pred                          # eq. (58)
-    return x_new, 0.5 * (P_new + P_new.T), y, S
+    x_new, P_new, S, _ = kalman.update(x_pred, P_pred, y, H(x_pred), R)   # eq. (55)-(58), M = I, Joseph form
+    return x_new, P_new, y, S
 
 
 class TakeoffGate:

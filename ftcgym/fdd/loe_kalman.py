@@ -21,6 +21,7 @@ from scipy import signal
 from scipy.special import erf
 
 from ..models.constants import GRAVITY
+from . import kalman
 from .base import AlarmLatch, Biquad
 
 #: 000 eq. (9): signs of each rotor's contribution to p_dot, q_dot and a_z for rotors r1..r4 of Fig. 2.
@@ -57,13 +58,9 @@ def failure_probability(k_hat, variance, k_threshold: float) -> np.ndarray:
 
 def kalman_step(x, P, z, H, Q, R, k_bounds=(0.0, 1.5)):
     """One step of 000 Algorithm 1 (random-walk Kalman estimator), then the bound on k (Sec. IV-B)."""
-    P = P + Q                                   # P_k|k-1 = P_k-1 + Q
-    y = z - H @ x                               # innovation
-    S = R + H @ P @ H.T
-    K = np.linalg.solve(S, H @ P).T             # K = P H^T S^-1 (S, P symmetric)
-    x = np.minimum(np.maximum(x + K @ y, k_bounds[0]), k_bounds[1])
-    P = (np.eye(len(x)) - K @ H) @ P            # P_k|k = (I - K H) P_k|k-1
-    return x, 0.5 * (P + P.T)
+    P = kalman.predict(P, Q)                    # P_k|k-1 = P_k-1 + Q
+    x, P, _, _ = kalman.update(x, P, z - H @ x, H, R)
+    return np.minimum(np.maximum(x, k_bounds[0]), k_bounds[1]), P
 
 
 class LoeKalmanDetector:

@@ -93,6 +93,7 @@ import math
 import numpy as np
 
 from ..models.pusher import TWO_PI, pusher_aero_torque
+from . import kalman
 from .base import AlarmLatch, model_with_error
 from .wrapper import DetectorWrapper
 
@@ -136,13 +137,12 @@ class ScalarKalmanFilter:
 
     def step(self, y: float, C: float, offset: float, R: float) -> tuple[float, float]:
         """One prediction + update; returns the innovation and its covariance (nu, S)."""
-        P = self.P + self.Q                             # eq. (17)-(18): x_k|k-1 = x_k-1
+        P = kalman.predict(np.array([[self.P]]), self.Q)   # eq. (17)-(18): x_k|k-1 = x_k-1
         nu = y - (C * self.x + offset)                  # eq. (19)-(20), offset = the other modes at x* (eq. 16)
-        S = C * P * C + R                               # eq. (21)
-        W = P * C / S                                   # eq. (22)
-        self.x += W * nu                                # eq. (23)
-        self.P = (1.0 - W * C) * P                      # eq. (24)
-        return nu, S
+        # eq. (21)-(24): S, the gain W, x and P (Joseph form)
+        x, P, S, _ = kalman.update(np.array([self.x]), P, np.array([nu]), np.array([[C]]), np.array([[R]]))
+        self.x, self.P = float(x[0]), float(P[0, 0])
+        return nu, float(S[0, 0])
 
 
 class BayesFilter:
