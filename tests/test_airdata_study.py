@@ -1,4 +1,5 @@
 """airdata-study scoring and the thresholds table, on synthetic data (no simulation)."""
+import dataclasses
 import numpy as np
 import pytest
 
@@ -89,8 +90,8 @@ def test_zeroed_pusher_rpm_isolated_within_a_second_in_cruise():
     assert out["alarm_time_table2"] is None and out["alarm_time_cusum"] is None
     assert out["airspeed_error_max_after_detection"] < 2.5 and out["airspeed_rmse_after_detection"] < 1.5
     from ftcgym.fdd.airdata_ekf import INNOVATION_DETECTORS
-    dropped = {sensor: dict(spec) for sensor, spec in INNOVATION_DETECTORS.items()}
-    del dropped["pusher_rpm"]["speed_from_current"]
+    dropped = {**INNOVATION_DETECTORS,
+               "pusher_rpm": dataclasses.replace(INNOVATION_DETECTORS["pusher_rpm"], speed_from_current=None)}
     out = study.fly("qp-rpm-sensor-fault", seed=2, env_overrides=overrides,
                     detector_kwargs={"innovation_detectors": dropped})
     assert out["airspeed_error_max_after_detection"] > 3.5 and out["airspeed_rmse_after_detection"] > 1.5
@@ -100,8 +101,8 @@ def test_pitot_confirmation_alone_isolates_the_zeroed_pusher_rpm():
     """With the a_x norm row out of reach (1e3 m/s^2), the pusher-RPM alarm can come only from its pitot
     confirmation: the EKF airspeed falls under the sound pitot after the a_x burst, within 1 s of the onset."""
     from ftcgym.fdd.airdata_ekf import INNOVATION_DETECTORS
-    detectors = {sensor: dict(spec) for sensor, spec in INNOVATION_DETECTORS.items()}
-    detectors["pusher_rpm"]["norm"] = (1e3, *detectors["pusher_rpm"]["norm"][1:])
+    rpm = INNOVATION_DETECTORS["pusher_rpm"]
+    detectors = {**INNOVATION_DETECTORS, "pusher_rpm": dataclasses.replace(rpm, norm=rpm.norm._replace(threshold=1e3))}
     faults = [{"kind": "pusher_rpm_sensor", "time": 32.0}]
     out = study.fly("qp-rpm-sensor-fault", seed=2, env_overrides={"faults": faults, "max_episode_seconds": 35.0},
                     detector_kwargs={"innovation_detectors": detectors})

@@ -24,7 +24,7 @@ from ftcgym.benchmark.backends import Callbacks, Job, int_at_least, run_jobs
 from ftcgym.benchmark.runner import episode_seed, make_env, roll_out
 from ftcgym.benchmark.scenarios import get_scenario
 from ftcgym.fdd import false_alarm
-from ftcgym.fdd.airdata_ekf import EKF_HZ, INNOVATION_DETECTORS
+from ftcgym.fdd.airdata_ekf import EKF_HZ, INNOVATION_DETECTORS, InnovationTest
 from ftcgym.fdd.pitot_detection import CUSUM_DEFAULT, TABLE_2_DERIVATIVE, TABLE_2_NORM, ResidualCusum
 
 DETECTOR = "airdata_ekf"
@@ -175,14 +175,15 @@ def criteria(cusum=CUSUM_DEFAULT, innovation_detectors=INNOVATION_DETECTORS) -> 
            ("pitot derivative", "pitot_residual_derivative", TABLE_2_DERIVATIVE[0], TABLE_2_DERIVATIVE[1], 0),
            ("pitot cusum", "cusum", cusum[1], 0.0, 0)]
     for sensor, spec in innovation_detectors.items():
-        for c in spec["channels"]:
-            out.append((f"{sensor}[{c}] norm", f"{sensor}_{c}_innovation", *spec["norm"][:2], spec.get("sign", 0)))
-            out.append((f"{sensor}[{c}] derivative", f"{sensor}_{c}_innovation_derivative", *spec["derivative"][:2], 0))
-        if "pitot_confirmation" in spec:
-            _, _, residual, hold = spec["pitot_confirmation"]
+        spec = InnovationTest.of(spec)
+        for c in spec.channels:
+            out.append((f"{sensor}[{c}] norm", f"{sensor}_{c}_innovation", *spec.norm[:2], spec.sign))
+            out.append((f"{sensor}[{c}] derivative", f"{sensor}_{c}_innovation_derivative", *spec.derivative[:2], 0))
+        if spec.pitot_confirmation is not None:
+            _, _, residual, hold = spec.pitot_confirmation
             out.append((f"{sensor} pitot confirmation", f"{sensor}_pitot_confirmation", residual, hold, 1))
-        if "current_check" in spec:
-            _, threshold, hold = spec["current_check"]
+        if spec.current_check is not None:
+            _, threshold, hold = spec.current_check
             out.append((f"{sensor} current check", f"{sensor}_current_excess", threshold, hold, 1))
     return out
 

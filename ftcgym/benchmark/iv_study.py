@@ -20,7 +20,7 @@ import numpy as np
 
 import ftcgym  # noqa: F401  (registers the env ids)
 from ftcgym.agents import make_policy
-from ftcgym.fdd.iv_change import IvChangeDetector, LowPassBank, SixDofResidual, iv_change_wrapper
+from ftcgym.fdd.iv_change import IvChangeSettings, LowPassBank, SixDofResidual, iv_change_wrapper
 
 ONSET, RAMP, SECONDS = 40.0, 2.0, 60.0
 
@@ -115,12 +115,12 @@ def plot(seed: int, path: str, heading_changes: bool = False) -> str:
     ax_iv.set_title("IV cost (004 eq. 30, lam 0.999, N_w 500) of the sensor-to-sensor residuals (29)")
     ax_c.plot(t, ratio, color="C2", label=r"$\hat c / c_0$ (IV estimate of $\lambda_1/m$)")
     ax_c.axhline(1.0, color="0.5", lw=1)
-    defaults = IvChangeDetector.__init__.__kwdefaults__
-    ax_c.axhline(defaults["cusum_ratio"], color="k", ls=":", lw=1, label="CUSUM target $c_1 / c_0$")
+    defaults = IvChangeSettings()
+    ax_c.axhline(defaults.cusum_ratio, color="k", ls=":", lw=1, label="CUSUM target $c_1 / c_0$")
     ax_c.set_ylim(-0.2, 1.6)
     ax_c.set_title("IV estimate of c (forgetting factor 0.999)")
     ax_g.plot(t, cusum, color="C3", label="CUSUM $g$ of the IV increments (the detector's test statistic)")
-    ax_g.axhline(defaults["cusum_threshold"], color="k", ls="--", lw=1, label="alarm threshold")
+    ax_g.axhline(defaults.cusum_threshold, color="k", ls="--", lw=1, label="alarm threshold")
     if row["alarm_time"] is not None:
         for ax in (ax_c, ax_g):
             ax.axvline(row["alarm_time"], color="r", lw=1, label=f"alarm {row['alarm_time']:.2f} s")

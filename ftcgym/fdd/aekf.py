@@ -48,6 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..models.constants import GRAVITY
+from ..settings import updated
 from ..models.geometry import euler_from_quat, rotation_from_euler, skew_matrix
 from . import kalman
 from .base import AlarmLatch
@@ -90,18 +91,25 @@ class QuadrotorModel:
             rotational_drag=tuple(map(float, getattr(params, "rotational_drag", (0.0, 0.0, 0.0)))))
 
 
+@dataclass(frozen=True)
+class AekfSettings:
+    """The parameters of `AugmentedEkfDetector`; each `AugmentedEkfDetector(..., **overrides)` keyword updates one."""
+
+    model_error: float = 0.0           # the detector's c_T is (1 + model_error) times the nominal one
+    loe_walk: float = 0.05             # 1/sqrt(s), sigma of the LOE random walk w' (eq. 43)
+    window: float = 0.5                # s, time constant of the innovation accumulation window (eq. 42)
+    threshold: float = 3.0             # T_0 of eq. (42), standard deviations of the accumulated innovation
+    isolation_threshold: float = 0.1   # LOE estimate above which a rotor may be isolated
+    warmup: float = 1.0                # s after the first sample without alarms
+    q_sigma: dict | None = None        # overrides of Q_SIGMA entries
+    r_sigma: dict | None = None        # overrides of R_SIGMA entries
+
 class AugmentedEkfDetector:
     """002's augmented EKF (see the module docstring), fed one sample at a time; plain numpy.
 
     model:               the vehicle's nominal numbers (`QuadrotorModel`, or use `from_params`)
     dt:                  the update interval (s) the model is discretised at: one `update` per dt
-    model_error:         the detector's c_T is (1 + model_error) times the nominal one (robustness studies)
-    loe_walk:            sigma of the LOE random walk w' of eq. (43), 1/sqrt(s): larger tracks faster, noisier
-    window:              time constant (s) of the innovation accumulation window (eq. 42)
-    threshold:           T_0 of eq. (42), in standard deviations of the accumulated innovation
-    isolation_threshold: LOE estimate above which a rotor may be isolated
-    warmup:              s after the first sample without alarms (the filter settles from its first guess)
-    q_sigma, r_sigma:    overrides of `Q_SIGMA` / `R_SIGMA` entries (e.g. for other sensor noise levels)
+    settings:            `AekfSettings` (each field also a keyword)
 
     Defaults tuned on seeds 1-6 of the env's default sensors (tests/test_aekf.py reports other seeds).
     """
@@ -120,26 +128,25 @@ class AugmentedEkfDetector:
                 "dist": 0.3}
     KEYS = ("position", "velocity", "attitude", "gyro", "rotor_speed")
 
-    def __init__(self, model: QuadrotorModel, dt: float, *, model_error: float = 0.0, loe_walk: float = 0.05,
-                 window: float = 0.5, threshold: float = 3.0, isolation_threshold: float = 0.1,
-                 warmup: float = 1.0, q_sigma: dict | None = None, r_sigma: dict | None = None):
-        for name, value in (("dt", dt), ("window", window), ("loe_walk", loe_walk)):
+    def __init__(self, model: QuadrotorModel, dt: float, settings: AekfSettings | None = None, **overrides):
+        s = self.settings = updated(settings or AekfSettings(), overrides, "aekf")
+        for name, value in (("dt", dt), ("window", s.window), ("loe_walk", s.loe_walk)):
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"{name}: must be a finite number > 0, got {value!r}")
-        if not (math.isfinite(model_error) and model_error > -1):
-            raise ValueError(f"model_error: must be a finite number > -1, got {model_error!r}")
+        if not (math.isfinite(s.model_error) and s.model_error > -1):
+            raise ValueError(f"model_error: must be a finite number > -1, got {s.model_error!r}")
         self.model, self.dt = model, float(dt)
-        self.threshold, self.isolation_threshold, self.warmup = threshold, isolation_threshold, warmup
-        self._forget = math.exp(-self.dt / window)
-        self._use_model(model, model_error)
-        q = _override(self.Q_SIGMA, q_sigma, "q_sigma")
-        q_c = _blocks(q["pos"], q["vel"], q["eta"], q["omega"], q["bias"], loe_walk, q["dist"]) ** 2
+        self.threshold, self.isolation_threshold, self.warmup = s.threshold, s.isolation_threshold, s.warmup
+        self._forget = math.exp(-self.dt / s.window)
+        self._use_model(model, s.model_error)
+        q = _override(self.Q_SIGMA, s.q_sigma, "q_sigma")
+        q_c = _blocks(q["pos"], q["vel"], q["eta"], q["omega"], q["bias"], s.loe_walk, q["dist"]) ** 2
         self.Q = np.diag(q_c * self.dt)                        # eq. (10), first term, G = I
         p0 = self.P0_SIGMA
         self._P0 = np.diag(_blocks(*(p0[k] for k in ("pos", "vel", "eta", "omega", "bias", "loe", "dist"))) ** 2)
         # Eq. (28)-(36) plus the gyro, ordered so that a step without fresh position/velocity is a prefix:
         # y = [eta (3), gyro (3) | p (3), v (3)].
-        r = _override(self.R_SIGMA, r_sigma, "r_sigma")
+        r = _override(self.R_SIGMA, s.r_sigma, "r_sigma")
         self.R_full = np.diag(np.repeat([r["attitude"], r["gyro"], r["position"], r["velocity"]], 3) ** 2)
         self.H_full = np.zeros((12, N_X))
         for row, block in ((0, ETA), (3, OMEGA), (3, BIAS), (6, POS), (9, VEL)):

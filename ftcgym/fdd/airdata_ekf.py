@@ -63,20 +63,23 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import signal
 
 from ..models.constants import GRAVITY
+from ..settings import updated
 from ..models.geometry import rotation_matrix, skew_matrix
 from ..models.pusher import pusher_thrust
 from ..models.quadplane_aero import fuselage_force, wing_flow
 from . import kalman
 from .base import Biquad, model_with_error
-from .pitot_detection import (CUSUM_DEFAULT, TABLE_2_DERIVATIVE, TABLE_2_NORM, PitotConfirmation,
+from .pitot_detection import (CUSUM_DEFAULT, TABLE_2_DERIVATIVE, TABLE_2_NORM, ConfirmationTest, CusumTest,
+                              PitotConfirmation, ThresholdTest,
                               PitotResidualDetector, ResidualCusum)
 from .propulsion_bayes import PropulsionModel
-from .rpm_current import RPM_CURRENT_CHECK, RpmCurrentCheck, speed_from_current
+from .rpm_current import RPM_CURRENT_CHECK, CurrentCheck, RpmCurrentCheck, speed_from_current
 
 #: 001 Table 1: process noise (accelerometer, gyro, wind) and measurement noise (GNSS velocity, model accel).
 TABLE_1_Q = {"accel": (1.2e-4, 6.2e-4, 3.0e-4), "gyro": (3.1e-9, 1.2e-9, 1.3e-9), "wind": (1.25e-4, 1.25e-4, 1.25e-5)}
@@ -92,6 +95,29 @@ ERROR_COEFFICIENTS = ("fuselage_drag_area", "hover_thrust_coefficient", "hover_d
 
 #: a_x's variance once the pusher speed comes from its current ("speed_from_current" below)
 SPEED_FROM_CURRENT_VARIANCE = 1e-3
+@dataclass(frozen=True)
+class InnovationTest:
+    """One sensor's fault detector on the EKF's measurement innovations (001 Sec. 6.2, Tables 2-3): the norm
+    and derivative criteria of Table 2 on each of its channels, and the departures from 001 that
+    INNOVATION_DETECTORS documents."""
+
+    channels: tuple             # indices into z = [V_N V_E V_D a_x a_y a_z]
+    norm: ThresholdTest         # the norm criterion on the innovation
+    derivative: ThresholdTest   # the derivative criterion
+    sign: int = 0               # +1 / -1: a one-sided norm criterion; 0: on |innovation|
+    pitot_confirmation: ConfirmationTest | None = None   # a third criterion, the pitot residual (`PitotConfirmation`)
+    rollback: float = 0.0       # s the EKF re-runs without the sensor once it is isolated
+    current_check: CurrentCheck | None = None  # alarm only while the pusher current contradicts the RPM reading
+    speed_from_current: float | None = None    # (m/s^2)^2: keep a_x with the current's speed at this variance
+
+    @classmethod
+    def of(cls, spec) -> "InnovationTest":
+        """An InnovationTest from itself or from a dict of its fields (JSON); the tests as lists."""
+        if isinstance(spec, cls):
+            return spec
+        return updated(cls((), TABLE_2_NORM, TABLE_2_DERIVATIVE), dict(spec), "innovation_detectors")
+
+
 #: `AirdataEkfDetector._pusher_speed`: averaging time (s), least speed (rad/s) and skew (forward flight, 001 Table 5)
 SPEED_SCALE_SECONDS, SPEED_SCALE_MIN_SPEED, SPEED_SCALE_MIN_SKEW = 10.0, 300.0, math.radians(80.0)
 #: 001 Sec. 6.2 / Table 2-3: one detector per measurement innovation, named by the sensor it isolates.
@@ -118,10 +144,12 @@ SPEED_SCALE_SECONDS, SPEED_SCALE_MIN_SPEED, SPEED_SCALE_MIN_SKEW = 10.0, 300.0, 
 #: error shows again only seconds later); the old 0.1 Hz / 1 s / 0.082 criterion took 2.0-14.8 s, median 2.9 s.
 #: The derivative row is Table 2's.
 INNOVATION_DETECTORS = {
-    "gnss": {"channels": (0, 1, 2), "norm": (2.5, 0.08, 5.0), "derivative": (30.0, 0.08, 5.0), "rollback": 0.16},
-    "pusher_rpm": {"channels": (3,), "norm": (0.41, 0.2, 1.0), "derivative": (250.0, 0.12, 0.1), "sign": 1,
-                   "pitot_confirmation": (0.15, 2.0, 3.0, 0.2), "rollback": 6.0, "current_check": RPM_CURRENT_CHECK,
-                   "speed_from_current": SPEED_FROM_CURRENT_VARIANCE},
+    "gnss": InnovationTest(channels=(0, 1, 2), norm=ThresholdTest(2.5, 0.08, 5.0),
+                           derivative=ThresholdTest(30.0, 0.08, 5.0), rollback=0.16),
+    "pusher_rpm": InnovationTest(channels=(3,), norm=ThresholdTest(0.41, 0.2, 1.0),
+                                 derivative=ThresholdTest(250.0, 0.12, 0.1), sign=1,
+                                 pitot_confirmation=ConfirmationTest(0.15, 2.0, 3.0, 0.2), rollback=6.0,
+                                 current_check=RPM_CURRENT_CHECK, speed_from_current=SPEED_FROM_CURRENT_VARIANCE),
 }
 #: "pitot_confirmation" (level m/s^2, window s, residual m/s, hold s; `PitotConfirmation`): a third criterion,
 #: for the weak bursts. Our EKF absorbs the zeroed RPM by lowering its airspeed 3-6 m/s within 0.5 s (001 Fig.
@@ -274,6 +302,36 @@ class TakeoffGate:
         return self.ground - level >= self.height
 
 
+@dataclass(frozen=True)
+class AirdataEkfSettings:
+    """The parameters of `AirdataEkfDetector`; each `AirdataEkfDetector(..., **overrides)` keyword updates one."""
+
+    ekf_hz: float = EKF_HZ                     # Hz, EKF rate (001 Sec. 7.1)
+    prefilter_hz: float = PREFILTER_CUTOFF_HZ  # Hz, cutoff of the inputs' and measurements' low-pass (001 Sec. 5)
+    Q_accel: tuple = TABLE_1_Q["accel"]        # (m/s^2)^2 per EKF step, 001 Table 1
+    Q_gyro: tuple = TABLE_1_Q["gyro"]          # (rad/s)^2 per EKF step, 001 Table 1
+    Q_wind: tuple = TABLE_1_Q["wind"]          # (m/s)^2 per EKF step, 001 Table 1
+    R: tuple = TABLE_1_R                       # GNSS velocity (m/s)^2 and model acceleration (m/s^2)^2, Table 1
+    wind_boost: float = WIND_BOOST             # factor on Q_wind ...
+    wind_boost_seconds: float = WIND_BOOST_SECONDS   # ... for this long after the start (001 Sec. 5.4)
+    takeoff_height: float = 1.0                # m the averaged height must rise before the EKF starts (`TakeoffGate`)
+    takeoff_window: float = 0.2                # s, the averaging window of the take-off gate
+    coefficient_error: float = 0.10            # the detector's model error on ERROR_COEFFICIENTS (`model_with_error`)
+    error_seed: int | None = None              # None: every coefficient 1 + error; else seeded signs
+    velocity_key: str = "gnss_velocity"        # the GNSS velocity reading
+    pitot_key: str = "pitot_airspeed"          # the pitot reading; absent from the readings: no pitot test
+    norm_criterion: ThresholdTest = TABLE_2_NORM              # 001 Table 2, pitot residual
+    derivative_criterion: ThresholdTest = TABLE_2_DERIVATIVE  # 001 Table 2, its derivative
+    detection_delay: float | None = None       # s after the start before the tests arm; None: wind_boost_seconds
+    pitot_reference: str = "forward"           # "airspeed": |V| as 001; "forward": max(u, 0), along the pitot
+    cusum: CusumTest = CUSUM_DEFAULT           # the CUSUM that runs beside Table 2
+    criterion: str = "table2"                  # the pitot test that drives `alarm`: "table2", "cusum", "either"
+    innovation_detectors: dict = field(default_factory=lambda: dict(INNOVATION_DETECTORS))  # sensor -> InnovationTest
+    fault_covariance: float = FAULT_COVARIANCE  # variance a measurement gets once its sensor is isolated (Sec. 6.2)
+    vertical_wind: str = "state"               # "state": mu_z estimated (001); "fixed": held at 0 (VERTICAL_WIND)
+    record: bool = False                       # keep `trace`, the detection signals per armed EKF step
+
+
 class AirdataEkfDetector:
     """001's synthetic air data EKF; outputs airspeed, wind and the filtered pitot residual, and raises the
     pitot fault alarm of Sec. 6.1 (`status()["alarm"]`, `isolated` = "pitot").
@@ -282,21 +340,9 @@ class AirdataEkfDetector:
     gnss_velocity (NED), position (NED, for the take-off gate), skew (rad), hover_rotor_speed (4, rad/s),
     pusher_speed (rad/s), pusher_current (A; for the pusher RPM's current check).
 
-    Parameters: params (the vehicle parameter set, read by attribute), sample_hz (rate of `update` calls),
-    ekf_hz (25), prefilter_hz (5), Q_accel, Q_gyro, Q_wind, R (Table 1), wind_boost (x100) for
-    wind_boost_seconds (20 s) after the start, takeoff_height and takeoff_window (`TakeoffGate`),
-    coefficient_error, error_seed (see ComponentForceModel), velocity_key (GNSS velocity reading);
-    pitot detection: pitot_key (reading; absent from the readings: no detection), norm_criterion and
-    derivative_criterion ((threshold, time s, cutoff Hz), Table 2), detection_delay (s after the start before
-    the criteria are armed; None: wind_boost_seconds), pitot_reference ("airspeed": the EKF airspeed |V|, as
-    001; "forward": max(u, 0), the air velocity along the pitot), cusum ((drift m/s^2, threshold m/s, cutoff Hz)
-    of `ResidualCusum`, which always runs beside Table 2), criterion (which pitot test drives `alarm`: "table2",
-    "cusum" or "either"); fault tolerance (Sec. 6.2): innovation_detectors ({sensor: channels, norm,
-    derivative, and optionally sign, pitot_confirmation, rollback, current_check}, INNOVATION_DETECTORS;
-    None: off),
-    fault_covariance (R of a measurement once its detector alarmed); vertical_wind ("state": mu_z estimated
-    as 001 does; "fixed": held at 0, see VERTICAL_WIND); record (keep `trace`, one dict of the
-    detection signals per armed EKF step, for `ftcgym thresholds`).
+    Parameters: params (the vehicle parameter set, read by attribute), sample_hz (rate of `update` calls) and
+    the settings (`AirdataEkfSettings`, each field also a keyword; `innovation_detectors` maps a sensor to its
+    `InnovationTest`, None or {} turns the innovation tests off).
 
     Status: `alarm` / `alarm_time` / `isolated` are the first of the pitot alarm (by `criterion`) and the
     innovation alarms, isolated as "pitot", "gnss" or "pusher_rpm"; `pitot_alarm`, `alarm_time_table2`,
@@ -310,53 +356,46 @@ class AirdataEkfDetector:
     output_fields = {"airspeed": (0.0, 200.0, (1,)), "wind": (-100.0, 100.0, (3,)),
                      "pitot_residual": (-200.0, 200.0, (1,))}
 
-    def __init__(self, params, sample_hz: float, ekf_hz: float = EKF_HZ, prefilter_hz: float = PREFILTER_CUTOFF_HZ,
-                 Q_accel=TABLE_1_Q["accel"], Q_gyro=TABLE_1_Q["gyro"], Q_wind=TABLE_1_Q["wind"], R=TABLE_1_R,
-                 wind_boost: float = WIND_BOOST, wind_boost_seconds: float = WIND_BOOST_SECONDS,
-                 takeoff_height: float = 1.0, takeoff_window: float = 0.2,
-                 coefficient_error: float = 0.10, error_seed: int | None = None,
-                 velocity_key: str = "gnss_velocity", pitot_key: str = "pitot_airspeed",
-                 norm_criterion=TABLE_2_NORM, derivative_criterion=TABLE_2_DERIVATIVE,
-                 detection_delay: float | None = None, pitot_reference: str = "forward",
-                 cusum=CUSUM_DEFAULT, criterion: str = "table2", innovation_detectors=INNOVATION_DETECTORS,
-                 fault_covariance: float = FAULT_COVARIANCE, vertical_wind: str = "state", record: bool = False):
+    def __init__(self, params, sample_hz: float, settings: AirdataEkfSettings | None = None, **overrides):
+        s = self.settings = updated(settings or AirdataEkfSettings(), overrides, "airdata_ekf")
+        ekf_hz, innovation_detectors = s.ekf_hz, {k: InnovationTest.of(v) for k, v in (s.innovation_detectors or {}).items()}
         if not (math.isfinite(sample_hz) and sample_hz > 0 and 0 < ekf_hz <= sample_hz):
             raise ValueError(f"sample_hz {sample_hz!r} and ekf_hz {ekf_hz!r}: need 0 < ekf_hz <= sample_hz")
-        self.model = ComponentForceModel(params, coefficient_error, error_seed)
+        self.model = ComponentForceModel(params, s.coefficient_error, s.error_seed)
         self.sample_hz, self.dt = float(sample_hz), 1.0 / float(ekf_hz)
-        self.Q = np.diag(np.concatenate([Q_accel, Q_gyro, Q_wind]).astype(float))
-        if vertical_wind not in VERTICAL_WIND:
-            raise ValueError(f"vertical_wind: {vertical_wind!r}; accepted: {list(VERTICAL_WIND)}")
-        if vertical_wind == "fixed":                          # mu_z stays 0: no process noise, no initial variance
+        self.Q = np.diag(np.concatenate([s.Q_accel, s.Q_gyro, s.Q_wind]).astype(float))
+        if s.vertical_wind not in VERTICAL_WIND:
+            raise ValueError(f"vertical_wind: {s.vertical_wind!r}; accepted: {list(VERTICAL_WIND)}")
+        if s.vertical_wind == "fixed":                        # mu_z stays 0: no process noise, no initial variance
             self.Q[8, 8] = 0.0
-        self.R = np.diag(np.asarray(R, dtype=float))
-        self.wind_boost, self.wind_boost_seconds = float(wind_boost), float(wind_boost_seconds)
-        self.takeoff, self.velocity_key = TakeoffGate(takeoff_height, takeoff_window, sample_hz), velocity_key
-        self._ba = butterworth_prefilter(sample_hz, prefilter_hz)
-        if pitot_reference not in ("airspeed", "forward"):
-            raise ValueError(f"pitot_reference: {pitot_reference!r}; accepted: ['airspeed', 'forward']")
-        self.pitot_key, self.pitot_reference = pitot_key, pitot_reference
-        self.detection_delay = self.wind_boost_seconds if detection_delay is None else float(detection_delay)
-        self.pitot_detector = PitotResidualDetector(ekf_hz, norm_criterion, derivative_criterion)
-        if criterion not in PITOT_CRITERIA:
-            raise ValueError(f"criterion: {criterion!r}; accepted: {list(PITOT_CRITERIA)}")
-        self.criterion = criterion
-        self.cusum = ResidualCusum(ekf_hz, *cusum)
+        self.R = np.diag(np.asarray(s.R, dtype=float))
+        self.wind_boost, self.wind_boost_seconds = float(s.wind_boost), float(s.wind_boost_seconds)
+        self.takeoff, self.velocity_key = TakeoffGate(s.takeoff_height, s.takeoff_window, sample_hz), s.velocity_key
+        self._ba = butterworth_prefilter(sample_hz, s.prefilter_hz)
+        if s.pitot_reference not in ("airspeed", "forward"):
+            raise ValueError(f"pitot_reference: {s.pitot_reference!r}; accepted: ['airspeed', 'forward']")
+        self.pitot_key, self.pitot_reference = s.pitot_key, s.pitot_reference
+        self.detection_delay = self.wind_boost_seconds if s.detection_delay is None else float(s.detection_delay)
+        self.pitot_detector = PitotResidualDetector(ekf_hz, s.norm_criterion, s.derivative_criterion)
+        if s.criterion not in PITOT_CRITERIA:
+            raise ValueError(f"criterion: {s.criterion!r}; accepted: {list(PITOT_CRITERIA)}")
+        self.criterion = s.criterion
+        self.cusum = ResidualCusum(ekf_hz, *s.cusum)
         # one PitotResidualDetector (low-pass + norm + derivative criteria) per innovation channel
         self.innovation_detectors = {
-            sensor: {c: PitotResidualDetector(ekf_hz, spec["norm"], spec["derivative"], spec.get("sign", 0))
-                     for c in spec["channels"]}
-            for sensor, spec in (innovation_detectors or {}).items()}
-        self.fault_covariance, self.record = float(fault_covariance), bool(record)
-        self.rollback = {sensor: float(spec.get("rollback", 0.0)) for sensor, spec in (innovation_detectors or {}).items()}
-        self.confirmations = {sensor: PitotConfirmation(*spec["pitot_confirmation"], ekf_hz)
-                              for sensor, spec in (innovation_detectors or {}).items() if "pitot_confirmation" in spec}
-        self.current_checks = {sensor: RpmCurrentCheck(params, sample_hz, *spec["current_check"],
-                                                       coefficient_error=coefficient_error, error_seed=error_seed)
-                               for sensor, spec in (innovation_detectors or {}).items() if "current_check" in spec}
+            sensor: {c: PitotResidualDetector(ekf_hz, spec.norm, spec.derivative, spec.sign) for c in spec.channels}
+            for sensor, spec in innovation_detectors.items()}
+        self.fault_covariance, self.record = float(s.fault_covariance), bool(s.record)
+        self.rollback = {sensor: float(spec.rollback) for sensor, spec in innovation_detectors.items()}
+        self.confirmations = {sensor: PitotConfirmation(*spec.pitot_confirmation, ekf_hz)
+                              for sensor, spec in innovation_detectors.items() if spec.pitot_confirmation is not None}
+        self.current_checks = {sensor: RpmCurrentCheck(params, sample_hz, *spec.current_check,
+                                                       coefficient_error=s.coefficient_error, error_seed=s.error_seed)
+                               for sensor, spec in innovation_detectors.items() if spec.current_check is not None}
         # the pusher speed from its current once the RPM sensor is isolated (see INNOVATION_DETECTORS)
-        self._current_variance = (innovation_detectors or {}).get("pusher_rpm", {}).get("speed_from_current")
-        self._propulsion = (PropulsionModel(params, coefficient_error, error_seed)
+        rpm = innovation_detectors.get("pusher_rpm")
+        self._current_variance = None if rpm is None else rpm.speed_from_current
+        self._propulsion = (PropulsionModel(params, s.coefficient_error, s.error_seed)
                             if self._current_variance is not None else None)
         self._history_length = max([round(t * ekf_hz) for t in self.rollback.values()], default=0) + 1
         self.reset()

@@ -117,12 +117,14 @@ estimate from the reference model's position error.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import signal
 
 from ..models.constants import GRAVITY
 from ..models.geometry import euler_from_quat, rotation_matrix
+from ..settings import updated
 from .base import AlarmLatch
 from .wrapper import DetectorWrapper
 
@@ -310,6 +312,35 @@ class AccelBiasEstimate:
         return np.array((-self.bias[1] * dr, self.bias[0] * dr))
 
 
+@dataclass(frozen=True)
+class IvChangeSettings:
+    """The parameters of `IvChangeDetector`; each `IvChangeDetector(..., **overrides)` keyword updates one."""
+
+    T: float = 0.005                   # s, the model's sample time (004: 200 Hz grid)
+    lam: float = 0.999                 # forgetting factor of the IV cost J (004 eq. 30)
+    n_w: int = 500                     # window of the IV cost J, grid samples (004 eq. 30)
+    lam_estimate: float = 0.999        # forgetting factor of the IV estimate of c
+    cusum_ratio: float = 0.8           # the CUSUM's target c_1 / c_0 (a lighter c: a heavier vehicle)
+    cusum_threshold: float = 4.3       # s, the CUSUM's alarm threshold
+    ratio_threshold: float | None = None   # alarm when c_hat / c_0 stays below this for alarm_hold s (None: off)
+    alarm_hold: float = 0.5            # s, hold of the ratio rule
+    min_excitation: float = 0.05       # share of the peak instrument excitation below which c_hat is not updated
+    threshold: float | None = None     # the paper's plain test J1 or J2 > threshold (None: off)
+    warmup: float = 10.0               # s before any test: the instruments' mean power is measured over it
+    cutoff_hz: float = 2.0             # Hz, Butterworth low-pass of every input
+    filter_order: int = 4              # order of that low-pass
+    weight_hz: float | None = 0.2      # Hz, the first-order IV prefilter (None: off)
+    max_rate: float = 1.8              # rad/s, roll/pitch rate above which samples are left out ...
+    gate_hold: float = 3.0             # s, ... and for this long after
+    gate: str = "measured"             # "measured", "reference" (the reference model's rates) or "none"
+    max_yaw_rate: float = math.inf     # rad/s, also gate on the yaw rate (off by default)
+    yaw_coupling: bool = True          # keep the yaw-rate coupling (28) linearises away
+    accel_bias_prior: float | None = 1e-9  # ridge of the accelerometer-bias estimate (None: no estimate)
+    kp: float = 1.6                    # 1/s^2, the reference model's position gain
+    kd: float = 2.4                    # 1/s, its velocity gain
+    k_att: float = 7.0                 # 1/s, its thrust-tilt lag
+    k_yaw: float = 2.5                 # 1/s, its heading lag
+
 class IvChangeDetector:
     """Payload change detector of 004: IV estimate of c = lambda_1 / m from the residuals r1, r2 (29).
 
@@ -337,48 +368,41 @@ class IvChangeDetector:
     output_fields = {"J": (0.0, np.inf, (2,)), "residual": (-np.inf, np.inf, (2,)),
                      "c_hat": (-np.inf, np.inf, (1,)), "cusum": (0.0, np.inf, (1,))}
 
-    def __init__(self, mass: float, lambda_1: float, dt: float, *, T: float = 0.005, lam: float = 0.999,
-                 n_w: int = 500, lam_estimate: float = 0.999, cusum_ratio: float = 0.8,
-                 cusum_threshold: float = 4.3, ratio_threshold: float | None = None,
-                 alarm_hold: float = 0.5, min_excitation: float = 0.05, threshold: float | None = None,
-                 warmup: float = 10.0, cutoff_hz: float = 2.0, filter_order: int = 4,
-                 weight_hz: float | None = 0.2, max_rate: float = 1.8, gate_hold: float = 3.0,
-                 gate: str = "measured", max_yaw_rate: float = math.inf, yaw_coupling: bool = True,
-                 accel_bias_prior: float | None = 1e-9,
-                 kp: float = 1.6, kd: float = 2.4, k_att: float = 7.0, k_yaw: float = 2.5):
-        for label, value in (("mass", mass), ("lambda_1", lambda_1), ("dt", dt), ("T", T)):
+    def __init__(self, mass: float, lambda_1: float, dt: float, settings: IvChangeSettings | None = None, **overrides):
+        s = self.settings = updated(settings or IvChangeSettings(), overrides, "iv_change")
+        for label, value in (("mass", mass), ("lambda_1", lambda_1), ("dt", dt), ("T", s.T)):
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"IvChangeDetector: {label} must be a finite number > 0, got {value!r}")
-        if not (0.0 < lam <= 1.0 and n_w >= 1 and 0.0 < lam_estimate < 1.0):
+        if not (0.0 < s.lam <= 1.0 and s.n_w >= 1 and 0.0 < s.lam_estimate < 1.0):
             raise ValueError(f"IvChangeDetector: need 0 < lam <= 1, n_w >= 1 and 0 < lam_estimate < 1, got "
-                             f"lam={lam!r}, n_w={n_w!r}, lam_estimate={lam_estimate!r}")
-        if not ((ratio_threshold is None or 0.0 < ratio_threshold < 1.0) and alarm_hold >= 0.0
-                and 0.0 <= min_excitation < 1.0):
+                             f"lam={s.lam!r}, n_w={s.n_w!r}, lam_estimate={s.lam_estimate!r}")
+        if not ((s.ratio_threshold is None or 0.0 < s.ratio_threshold < 1.0) and s.alarm_hold >= 0.0
+                and 0.0 <= s.min_excitation < 1.0):
             raise ValueError("IvChangeDetector: need 0 < ratio_threshold < 1 (or None), alarm_hold >= 0 and "
-                             f"0 <= min_excitation < 1, got {ratio_threshold!r}, {alarm_hold!r}, {min_excitation!r}")
-        if not (0.0 < cusum_ratio < 1.0 and cusum_threshold > 0.0):
+                             f"0 <= min_excitation < 1, got {s.ratio_threshold!r}, {s.alarm_hold!r}, {s.min_excitation!r}")
+        if not (0.0 < s.cusum_ratio < 1.0 and s.cusum_threshold > 0.0):
             raise ValueError("IvChangeDetector: need 0 < cusum_ratio < 1 and cusum_threshold > 0, got "
-                             f"{cusum_ratio!r}, {cusum_threshold!r}")
+                             f"{s.cusum_ratio!r}, {s.cusum_threshold!r}")
         self.c = c = lambda_1 / mass
-        self.dt, self.T = float(dt), float(T)
-        self.theta = (-2.0 + c * T, 1.0 - c * T, c * GRAVITY * T * T)   # 004 eq. (29)
-        self.threshold = None if threshold is None else float(threshold)
-        self.ratio_threshold = None if ratio_threshold is None else float(ratio_threshold)
-        self.alarm_hold = float(alarm_hold)
-        self.cusum_ratio, self.cusum_threshold = float(cusum_ratio), float(cusum_threshold)
-        self.min_excitation, self.warmup = float(min_excitation), float(warmup)
-        self.max_rate, self.gate_hold = float(max_rate), float(gate_hold)
-        if gate not in ("measured", "reference", "none"):
-            raise ValueError(f"IvChangeDetector: gate must be 'measured', 'reference' or 'none', got {gate!r}")
-        self.gate, self.max_yaw_rate = gate, float(max_yaw_rate)
-        self.yaw_coupling = bool(yaw_coupling)
+        self.dt, self.T = float(dt), float(s.T)
+        self.theta = (-2.0 + c * s.T, 1.0 - c * s.T, c * GRAVITY * s.T * s.T)   # 004 eq. (29)
+        self.threshold = None if s.threshold is None else float(s.threshold)
+        self.ratio_threshold = None if s.ratio_threshold is None else float(s.ratio_threshold)
+        self.alarm_hold = float(s.alarm_hold)
+        self.cusum_ratio, self.cusum_threshold = float(s.cusum_ratio), float(s.cusum_threshold)
+        self.min_excitation, self.warmup = float(s.min_excitation), float(s.warmup)
+        self.max_rate, self.gate_hold = float(s.max_rate), float(s.gate_hold)
+        if s.gate not in ("measured", "reference", "none"):
+            raise ValueError(f"IvChangeDetector: gate must be 'measured', 'reference' or 'none', got {s.gate!r}")
+        self.gate, self.max_yaw_rate = s.gate, float(s.max_yaw_rate)
+        self.yaw_coupling = bool(s.yaw_coupling)
         # None: no accelerometer-bias estimate (it only matters through the yaw coupling)
-        self.accel_bias = (AccelBiasEstimate(accel_bias_prior)
-                           if yaw_coupling and accel_bias_prior is not None else None)
-        self._filter = (cutoff_hz, filter_order, self.dt, weight_hz)
-        self.reference_model = ReferenceModel(c, self.dt, kp, kd, k_att, k_yaw)
-        self.cost = IvCost(lam, n_w, (2, 3))
-        self.estimate = IvEstimate(lam_estimate)
+        self.accel_bias = (AccelBiasEstimate(s.accel_bias_prior)
+                           if s.yaw_coupling and s.accel_bias_prior is not None else None)
+        self._filter = (s.cutoff_hz, s.filter_order, self.dt, s.weight_hz)
+        self.reference_model = ReferenceModel(c, self.dt, s.kp, s.kd, s.k_att, s.k_yaw)
+        self.cost = IvCost(s.lam, s.n_w, (2, 3))
+        self.estimate = IvEstimate(s.lam_estimate)
         self.latch = AlarmLatch()
         self.reset()
 

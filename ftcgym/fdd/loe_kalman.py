@@ -15,12 +15,14 @@ Detection starts once the rotors produce a set share of the weight (take-off gat
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import signal
 from scipy.special import erf
 
 from ..models.constants import GRAVITY
+from ..settings import updated
 from . import kalman
 from .base import AlarmLatch, Biquad
 
@@ -63,40 +65,49 @@ def kalman_step(x, P, z, H, Q, R, k_bounds=(0.0, 1.5)):
     return np.minimum(np.maximum(x, k_bounds[0]), k_bounds[1]), P
 
 
+@dataclass(frozen=True)
+class LoeKalmanSettings:
+    """The parameters of `LoeKalmanDetector`; each `LoeKalmanDetector(..., **overrides)` keyword updates one."""
+
+    G: tuple = TABLE_II["G"]            # (G_p, G_q, G_az) of eq. (9): 1/(kg m) for p_dot, q_dot; 1/kg for a_z
+    effectiveness_matrix: tuple | None = None  # a (3, 4) B: [p_dot, q_dot, a_z] = B omega^2, replacing diag(G) S
+    Q: float = Q_PER_SAMPLE            # process noise per sample, times I (see Q_PER_SAMPLE)
+    R: float = TABLE_II["R"]           # measurement noise, times I (Table II)
+    k_threshold: float = TABLE_II["k_threshold"]            # eq. (15)
+    p_fail_threshold: float = TABLE_II["p_fail_threshold"]  # eq. (16)
+    k_bounds: tuple = (0.0, 1.5)       # the bound on the estimates k (Sec. IV-B)
+    filter_wn: float = 50.0            # rad/s, the low-pass's natural frequency (Sec. IV-A)
+    filter_zeta: float = 0.55          # its damping (Sec. IV-A)
+    takeoff_fraction: float = 0.5      # detection starts once the rotors carry this share of the weight (Sec. V-D)
+    initial_variance: float = 0.01     # P_0 = this times I
+
 class LoeKalmanDetector:
     """000's LOE detector. Readings: `gyro` (rad/s, FRD), `accel` (specific force, m/s^2), `rotor_speed` (rad/s).
 
-    Parameters (defaults: 000 Table II and Sec. IV-A):
-    dt: sample time (000 runs at 500 Hz). G: (G_p, G_q, G_az) of eq. (9). effectiveness_matrix: an optional
-    (3, 4) B with [p_dot, q_dot, a_z] = B omega^2, replacing diag(G) S for a vehicle with other geometry or
-    motor numbering (e.g. identified from a log). Q, R: process noise per sample and measurement noise
-    (scalars times I; see Q_PER_SAMPLE).
-    k_threshold, p_fail_threshold: eq. (15)-(16). takeoff_fraction: detection starts once the rotors carry
-    this share of the weight (|B[2] omega^2| >= fraction * g), 000 Sec. V-D.
+    Parameters: dt (sample time; 000 runs at 500 Hz) and the settings (`LoeKalmanSettings`, defaults 000 Table II
+    and Sec. IV-A; each field also a keyword). `effectiveness_matrix` serves a vehicle with other geometry or
+    motor numbering (e.g. identified from a log).
     """
 
     name = "loe_kalman"
     output_fields = {"k_hat": (0.0, 1.5, (4,)), "k_var": (0.0, VARIANCE_CEILING, (4,)), "p_fail": (0.0, 1.0, (4,))}
 
-    def __init__(self, dt: float, G=TABLE_II["G"], effectiveness_matrix=None, Q: float = Q_PER_SAMPLE,
-                 R: float = TABLE_II["R"], k_threshold: float = TABLE_II["k_threshold"],
-                 p_fail_threshold: float = TABLE_II["p_fail_threshold"], k_bounds=(0.0, 1.5),
-                 filter_wn: float = 50.0, filter_zeta: float = 0.55, takeoff_fraction: float = 0.5,
-                 initial_variance: float = 0.01):
+    def __init__(self, dt: float, settings: LoeKalmanSettings | None = None, **overrides):
+        s = self.settings = updated(settings or LoeKalmanSettings(), overrides, "loe_kalman")
         if not (np.isfinite(dt) and dt > 0):
             raise ValueError(f"dt: must be a finite number > 0, got {dt!r}")
         self.dt = float(dt)
-        B = np.diag(np.asarray(G, dtype=float)) @ SIGNS_000 if effectiveness_matrix is None else \
-            np.asarray(effectiveness_matrix, dtype=float)
+        B = np.diag(np.asarray(s.G, dtype=float)) @ SIGNS_000 if s.effectiveness_matrix is None else \
+            np.asarray(s.effectiveness_matrix, dtype=float)
         if B.shape != (3, 4) or not np.all(np.isfinite(B)):
             raise ValueError(f"effectiveness_matrix: must be a finite (3, 4) array, got shape {B.shape}")
         self.B = B
-        self.Q, self.R = Q * np.eye(4), R * np.eye(3)
-        self.k_threshold, self.p_fail_threshold = k_threshold, p_fail_threshold
-        self.k_bounds = k_bounds
-        self.takeoff_fraction = takeoff_fraction
-        self.initial_variance = initial_variance
-        self._coefficients = lowpass_coefficients(filter_wn, filter_zeta, self.dt)
+        self.Q, self.R = s.Q * np.eye(4), s.R * np.eye(3)
+        self.k_threshold, self.p_fail_threshold = s.k_threshold, s.p_fail_threshold
+        self.k_bounds = s.k_bounds
+        self.takeoff_fraction = s.takeoff_fraction
+        self.initial_variance = s.initial_variance
+        self._coefficients = lowpass_coefficients(s.filter_wn, s.filter_zeta, self.dt)
         self._alarm = AlarmLatch()
         self.reset()
 

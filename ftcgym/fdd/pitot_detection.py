@@ -20,14 +20,43 @@ ramp reaches 5.5 m/s at 2.2 s, plus the filter's lag, the sample phase and the h
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 from scipy import signal
 
 from .base import Biquad
 
-#: 001 Table 2, pitot rows: threshold, time threshold (s), cutoff (Hz).
-TABLE_2_NORM = (5.5, 0.25, 5.0)
-TABLE_2_DERIVATIVE = (25.0, 0.12, 5.0)
+
+
+class ThresholdTest(NamedTuple):
+    """A residual criterion of 001 Sec. 6.1 / Table 2: the residual, low-passed at `cutoff_hz` (2nd-order
+    Butterworth), at or above `threshold` for `hold` s."""
+
+    threshold: float    # m/s for a residual, m/s^2 for its derivative or an acceleration innovation
+    hold: float         # s, Table 2's "time threshold"
+    cutoff_hz: float    # Hz
+
+
+class CusumTest(NamedTuple):
+    """The one-sided CUSUM on the residual's drop (`ResidualCusum`)."""
+
+    drift: float        # m/s^2, the drift allowance nu
+    threshold: float    # m/s, h
+    cutoff_hz: float    # Hz, its own low-pass of the residual
+
+
+class ConfirmationTest(NamedTuple):
+    """An innovation burst confirmed by the pitot (`PitotConfirmation`)."""
+
+    level: float        # m/s^2, the innovation level that opens the window
+    window: float       # s the window stays open after the level
+    residual: float     # m/s, the pitot residual that must hold while it is open ...
+    hold: float         # s, ... for this long
+
+
+#: 001 Table 2, pitot rows.
+TABLE_2_NORM = ThresholdTest(5.5, 0.25, 5.0)
+TABLE_2_DERIVATIVE = ThresholdTest(25.0, 0.12, 5.0)
 #: The CUSUM on the residual's drop (`ResidualCusum`): drift allowance nu (m/s^2), threshold h (m/s), cutoff (Hz).
 #: Tuned on 12 fault-free qp-no-fault-long flights (0.76 h, `ftcgym thresholds --episodes 12 --seed 1000`,
 #: the tuning seeds): the residual's fast noise (its 5 Hz-filtered derivative has sigma ~4 m/s^2) made the CUSUM
@@ -35,7 +64,7 @@ TABLE_2_DERIVATIVE = (25.0, 0.12, 5.0)
 #: passes with ~0.5 s lag, the noise does not); nu = 1.0 m/s^2 (below 001's 2.5 m/s^2 ramp); h = 1.9 m/s, the
 #: tool's 1.82 m/s for 0.1% false detection per flight hour (001 Sec. 6.1's budget, run-rate method) rounded up.
 #: Offline on the same flights, a -2.5 m/s^2 ramp injected in cruise: median delay 1.84 s (Table 2 needs > 2.2 s).
-CUSUM_DEFAULT = (1.0, 1.9, 0.5)
+CUSUM_DEFAULT = CusumTest(1.0, 1.9, 0.5)
 
 
 class ThresholdCriterion:

@@ -89,10 +89,12 @@ target; on a recorded log or another env the request is only published.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..models.pusher import TWO_PI, pusher_aero_torque
+from ..settings import updated
 from . import kalman
 from .base import AlarmLatch, model_with_error
 from .wrapper import DetectorWrapper
@@ -228,20 +230,38 @@ class _BlockAverager:
         return block, diff, instrument
 
 
+@dataclass(frozen=True)
+class PropulsionBayesSettings:
+    """The parameters of `PropulsionBayesDetector`; each `PropulsionBayesDetector(..., **overrides)` keyword updates one."""
+
+    fdi_hz: float = 2.0                        # Hz, rate of the FDI samples (block averages of the readings)
+    coefficient_error: float = 0.10            # the model's error on ERROR_COEFFICIENTS (`PropulsionModel`)
+    error_seed: int | None = None              # None: every coefficient 1 + error; else seeded signs
+    process_noise: tuple = (5e-4, 5e-4, 5e-4)  # N m per sqrt(s), per mode: Q^(i) = (q_i / mean C^(i))^2 / fdi_hz
+    s_detect: float = 1.0                      # Bayes-filter innovation variance in detection, in units of R
+    s_isolate: float = 1.0                     # the same in isolation (the sensitivity, 003 Sec. III-E)
+    detection_window: float = 20.0             # s, L_D of the detection Bayes filters (eq. 32)
+    perturbation: float = 4.0                  # m/s, the cruise-airspeed step asked for (003 Sec. III-D)
+    settle: float = 12.0                       # s after each calibration airspeed change and after the gate opens
+    calibration_seconds: float = 15.0          # s of data at each calibration airspeed
+    level_seconds: float = 25.0                # s at each airspeed of an isolation step
+    develop_window: float = 10.0               # s: a fault counts as developed when the KF means over this ...
+    develop_ratio: float = 0.15                # ... moved less than this share of their distance from x* ...
+    max_develop: float = 30.0                  # ... or after this many s
+    p_confident: float = 0.95                  # isolation posterior that stops stepping
+    max_cycles: int = 2                        # most isolation steps
+    min_airspeed: float = 12.0                 # m/s: below it the detector idles (not wing-borne)
+    min_current: float = 3.0                   # A: below it the detector idles (pusher not driven)
+    airspeed_key: str = "pitot_airspeed"       # the airspeed reading
+    omega_smoothing: float = 0.1               # s either side of a block boundary averaged for its speed
+
 class PropulsionBayesDetector:
     """003 Sec. III: detects and isolates propeller icing, viscous and static friction. See the module
     docstring for the pipeline and the departures.
 
     Readings: pusher_speed (rad/s), pusher_current (A), airspeed (`airspeed_key`, default pitot_airspeed).
-    Parameters: params (the vehicle set, read by attribute), sample_hz (rate of `update`), fdi_hz (2),
-    coefficient_error, error_seed (PropulsionModel), process_noise (per mode, the random walk of the torque
-    it explains, N m per sqrt(s): Q^(i) = (q_i / mean C^(i))^2 / fdi_hz), s_detect and s_isolate (Bayes-filter innovation
-    variances in units of R: the sensitivity, Sec. III-E), detection_window (s, L_D), perturbation (m/s asked
-    for), settle (s after each calibration airspeed change and after the gate opens), calibration_seconds (s of
-    data at each calibration airspeed), develop_window, develop_ratio and max_develop (s, s: when the fault
-    counts as developed), level_seconds (s at each airspeed of an isolation step), p_confident and max_cycles
-    (isolation: posterior needed to stop stepping, most steps), min_airspeed (m/s), min_current (A),
-    omega_smoothing (s either side of a block boundary averaged for its speed, `_BlockAverager`).
+    Parameters: params (the vehicle set, read by attribute), sample_hz (rate of `update`) and the settings
+    (`PropulsionBayesSettings`, each field also a keyword).
     """
 
     name = "propulsion_bayes"
@@ -249,34 +269,29 @@ class PropulsionBayesDetector:
                      "estimate": (-1e3, 1e3, (3,)), "airspeed_request": (-20.0, 20.0, (1,)),
                      "phase": (0.0, len(PHASES) - 1.0, (1,))}
 
-    def __init__(self, params, sample_hz: float, fdi_hz: float = 2.0, coefficient_error: float = 0.10,
-                 error_seed: int | None = None, process_noise=(5e-4, 5e-4, 5e-4), s_detect: float = 1.0,
-                 s_isolate: float = 1.0, detection_window: float = 20.0, perturbation: float = 4.0,
-                 settle: float = 12.0, calibration_seconds: float = 15.0, level_seconds: float = 25.0,
-                 develop_window: float = 10.0, develop_ratio: float = 0.15, max_develop: float = 30.0,
-                 p_confident: float = 0.95, max_cycles: int = 2, min_airspeed: float = 12.0,
-                 min_current: float = 3.0, airspeed_key: str = "pitot_airspeed", omega_smoothing: float = 0.1):
-        if not (math.isfinite(sample_hz) and 0.0 < fdi_hz <= sample_hz):
-            raise ValueError(f"sample_hz {sample_hz!r} and fdi_hz {fdi_hz!r}: need 0 < fdi_hz <= sample_hz")
-        for key, value in (("s_detect", s_detect), ("s_isolate", s_isolate), ("detection_window", detection_window),
-                           ("calibration_seconds", calibration_seconds), ("level_seconds", level_seconds),
-                           ("develop_window", develop_window), ("omega_smoothing", omega_smoothing)):
+    def __init__(self, params, sample_hz: float, settings: PropulsionBayesSettings | None = None, **overrides):
+        s = self.settings = updated(settings or PropulsionBayesSettings(), overrides, "propulsion_bayes")
+        if not (math.isfinite(sample_hz) and 0.0 < s.fdi_hz <= sample_hz):
+            raise ValueError(f"sample_hz {sample_hz!r} and fdi_hz {s.fdi_hz!r}: need 0 < fdi_hz <= sample_hz")
+        for key, value in (("s_detect", s.s_detect), ("s_isolate", s.s_isolate), ("detection_window", s.detection_window),
+                           ("calibration_seconds", s.calibration_seconds), ("level_seconds", s.level_seconds),
+                           ("develop_window", s.develop_window), ("omega_smoothing", s.omega_smoothing)):
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"{key}: must be a positive number, got {value!r}")
-        self.model = PropulsionModel(params, coefficient_error, error_seed)
-        self.block = max(1, int(round(sample_hz / fdi_hz)))
+        self.model = PropulsionModel(params, s.coefficient_error, s.error_seed)
+        self.block = max(1, int(round(sample_hz / s.fdi_hz)))
         self.dt = self.block / float(sample_hz)                   # s per FDI sample
-        self.q = np.asarray(process_noise, dtype=float)
-        self.s_detect, self.s_isolate = float(s_detect), float(s_isolate)
-        self.L_detect = self._samples(detection_window)
-        self.perturbation, self.settle = float(perturbation), float(settle)
-        self.n_calibration, self.n_develop = self._samples(calibration_seconds), self._samples(develop_window)
-        self.level_seconds, self.develop_ratio, self.max_develop = float(level_seconds), float(develop_ratio), float(max_develop)
-        self.p_confident, self.max_cycles = float(p_confident), int(max_cycles)
-        self.min_airspeed, self.min_current, self.airspeed_key = float(min_airspeed), float(min_current), airspeed_key
+        self.q = np.asarray(s.process_noise, dtype=float)
+        self.s_detect, self.s_isolate = float(s.s_detect), float(s.s_isolate)
+        self.L_detect = self._samples(s.detection_window)
+        self.perturbation, self.settle = float(s.perturbation), float(s.settle)
+        self.n_calibration, self.n_develop = self._samples(s.calibration_seconds), self._samples(s.develop_window)
+        self.level_seconds, self.develop_ratio, self.max_develop = float(s.level_seconds), float(s.develop_ratio), float(s.max_develop)
+        self.p_confident, self.max_cycles = float(s.p_confident), int(s.max_cycles)
+        self.min_airspeed, self.min_current, self.airspeed_key = float(s.min_airspeed), float(s.min_current), s.airspeed_key
         self.max_speed = 0.98 * float(params.pusher_omega_max)
         self._rate_alpha = 1.0 - math.exp(-1.0 / (sample_hz * 0.5))     # 0.5 s low-pass of the airspeed
-        self._averager = _BlockAverager(self.block, max(1, int(round(omega_smoothing * sample_hz))), 1.0 / sample_hz)
+        self._averager = _BlockAverager(self.block, max(1, int(round(s.omega_smoothing * sample_hz))), 1.0 / sample_hz)
         self._latch = AlarmLatch()
         self.reset()
 

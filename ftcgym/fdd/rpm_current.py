@@ -30,6 +30,7 @@ at idle (0 A drawn where 2 I_0 is allowed).
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from scipy import signal
@@ -56,8 +57,15 @@ def speed_from_current(model: PropulsionModel, current: float, airspeed: float) 
     return max((-b + math.sqrt(discriminant)) / (2.0 * a), 0.0)
 
 
-#: (allowance, threshold A, hold s) of `RpmCurrentCheck`
-RPM_CURRENT_CHECK = (1.0, 2.0, 0.2)
+class CurrentCheck(NamedTuple):
+    """The settings of `RpmCurrentCheck`."""
+
+    allowance: float    # share by which every term of the current bound is widened
+    threshold: float    # A, the excess current that must hold ...
+    hold: float         # s, ... for this long
+
+
+RPM_CURRENT_CHECK = CurrentCheck(1.0, 2.0, 0.2)
 
 
 class RpmCurrentCheck:
