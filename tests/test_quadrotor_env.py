@@ -50,7 +50,7 @@ def test_same_seed_bit_identical_over_5000_steps_and_seeds_differ():
 
 
 def test_reset_restores_the_world_exactly():
-    """A second episode with the same seed on the same env repeats the first (saved-state reset)."""
+    """A second episode with the same seed on the same env repeats the first (the world is rebuilt on reset)."""
     env = make_env(wind=LIGHT_WIND, max_episode_seconds=60)
     first = _rollout(3, 500, env)
     _rollout(4, 300, env)

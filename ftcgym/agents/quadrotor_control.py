@@ -15,7 +15,7 @@ import numpy as np
 
 from ..models.geometry import cross, rotation_matrix
 from ..models.constants import GRAVITY
-from ..models.quadrotor import YAW_SIGNS, QuadrotorParams
+from ..models.quadrotor import QuadrotorParams, rotor_wrench_matrix
 from .base import UP
 
 
@@ -152,6 +152,4 @@ def _largest_fitting_share(base: np.ndarray, extra: np.ndarray, low: float, high
 
 def allocation_matrix(params: QuadrotorParams) -> np.ndarray:
     """[T, tau_x, tau_y, tau_z] = A omega^2 for nominal rotors (000 eq. 8; yaw row 004 eq. 7)."""
-    pos = params.rotor_positions
-    c_t, c_q = params.thrust_coefficient, params.torque_coefficient
-    return np.vstack([np.full(4, c_t), -c_t * pos[:, 1], c_t * pos[:, 0], c_q * np.asarray(YAW_SIGNS)])
+    return rotor_wrench_matrix(params.rotor_positions, params.thrust_coefficient, params.torque_coefficient)

@@ -50,6 +50,7 @@ import numpy as np
 from ..models.constants import GRAVITY
 from ..settings import updated
 from ..models.geometry import euler_from_quat, rotation_from_euler, skew_matrix
+from ..models.quadrotor import YAW_SIGNS, rotor_wrench_matrix
 from . import kalman
 from .base import AlarmLatch
 from .wrapper import DetectorWrapper
@@ -58,7 +59,6 @@ N_X = 21
 POS, VEL, ETA, OMEGA, BIAS, LOE, DIST = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15),
                                          slice(15, 19), slice(19, 21))
 PSI = 8
-DEFAULT_YAW_SIGNS = (1.0, -1.0, 1.0, -1.0)  # DESIGN.md / 004 eq. (7)
 
 
 @dataclass(frozen=True)
@@ -70,7 +70,7 @@ class QuadrotorModel:
     rotor_positions: tuple              # 4 x (x, y, z) in body FRD
     thrust_coefficient: float           # c_T: T_i = c_T k_i Omega_i^2
     torque_coefficient: float           # c_Q: drag torque c_Q k_i Omega_i^2
-    yaw_signs: tuple = DEFAULT_YAW_SIGNS
+    yaw_signs: tuple = YAW_SIGNS
     propeller_inertia: float = 0.0      # gyroscopic and spin-up torques
     rotor_drag_coefficient: float = 0.0  # in-plane rotor drag k_d k_i Omega_i v
     body_drag: tuple = (0.0, 0.0, 0.0)   # N s/m, linear, FRD
@@ -84,7 +84,7 @@ class QuadrotorModel:
             rotor_positions=tuple(map(tuple, np.asarray(params.rotor_positions, dtype=float))),
             thrust_coefficient=float(params.thrust_coefficient),
             torque_coefficient=float(params.torque_coefficient),
-            yaw_signs=tuple(getattr(params, "yaw_signs", DEFAULT_YAW_SIGNS)),
+            yaw_signs=tuple(getattr(params, "yaw_signs", YAW_SIGNS)),
             propeller_inertia=float(getattr(params, "propeller_inertia", 0.0)),
             rotor_drag_coefficient=float(getattr(params, "rotor_drag_coefficient", 0.0)),
             body_drag=tuple(map(float, getattr(params, "body_drag", (0.0, 0.0, 0.0)))),
@@ -166,7 +166,7 @@ class AugmentedEkfDetector:
         self.J = np.asarray(m.inertia, dtype=float)
         self.s = np.asarray(m.yaw_signs, dtype=float)
         # Moment per unit effective Omega^2 (000 eq. 4; yaw row 004 eq. 7): columns are rotors.
-        self.A = np.vstack([-self.c_T * r[:, 1], self.c_T * r[:, 0], m.torque_coefficient * self.s])
+        self.A = rotor_wrench_matrix(r, self.c_T, m.torque_coefficient, self.s)[1:]
         self.I_p, self.k_d = m.propeller_inertia, m.rotor_drag_coefficient
         self.mass, self.d_body = m.mass, tuple(m.body_drag)
         self.J_tuple, self.d_rot_tuple = tuple(m.inertia), tuple(m.rotational_drag)

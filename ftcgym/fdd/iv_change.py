@@ -124,13 +124,12 @@ from scipy import signal
 
 from ..models.constants import GRAVITY
 from ..models.geometry import euler_from_quat, rotation_matrix
+from ..models.quadrotor import rotor_wrench_matrix
 from ..settings import updated
 from .base import AlarmLatch
 from .wrapper import DetectorWrapper
 
 READ_KEYS = ("gyro", "accel", "reference_position", "reference_velocity", "reference_yaw")
-#: yaw reaction-torque sign per rotor r1..r4 (004 eq. 7, DESIGN.md); fdd does not import envs.
-YAW_SIGNS = (1.0, -1.0, 1.0, -1.0)
 
 
 def drag_and_mass(params) -> tuple[float, float]:
@@ -549,7 +548,7 @@ class SixDofResidual:
         pos = np.asarray(params.rotor_positions, dtype=float)
         c_t, c_q = params.thrust_coefficient, params.torque_coefficient
         # [tau_phi, tau_theta, tau_psi] = M omega^2: 004 eq. (5)-(7) for our X geometry (FRD).
-        self.M = np.vstack([-c_t * pos[:, 1], c_t * pos[:, 0], c_q * np.array(YAW_SIGNS)])
+        self.M = rotor_wrench_matrix(pos, c_t, c_q)[1:]
         self.dt = float(dt)
         self.reset()
 

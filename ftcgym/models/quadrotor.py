@@ -14,14 +14,26 @@ import numpy as np
 
 from .constants import GRAVITY
 
+#: yaw reaction-torque sign per rotor (004 eq. 7; DESIGN.md): + means +z (FRD) torque on the body.
+YAW_SIGNS = (1.0, -1.0, 1.0, -1.0)
+
+
+def rotor_wrench_matrix(positions, thrust_coefficient: float, torque_coefficient: float,
+                        yaw_signs=YAW_SIGNS) -> np.ndarray:
+    """The (4, n) matrix A with [T, tau_x, tau_y, tau_z] = A (k omega^2) for rotors at `positions` (body FRD,
+    thrust along -z): collective thrust and moments r_i x (0, 0, -T_i) (000 eq. 4, 8) and drag torques
+    c_Q s_i (004 eq. 7)."""
+    pos = np.asarray(positions, dtype=float)
+    c_t, c_q = thrust_coefficient, torque_coefficient
+    return np.vstack([np.full(len(pos), c_t), -c_t * pos[:, 1], c_t * pos[:, 0], c_q * np.asarray(yaw_signs)])
+
+
 def rotational_drag_moment(linear: np.ndarray, quadratic: np.ndarray, rates: np.ndarray) -> np.ndarray:
     """Aerodynamic damping moment -(D1 + D2 |w|) w per body axis: linear as 004 eq. (11) and quadratic as
     Sun et al.'s Bebop2 model (simpleAeroModel.m: MDrag = -sign(w) rotDrag w^2)."""
     return -(linear + quadratic * np.abs(rates)) * rates
 
 
-#: yaw reaction-torque sign per rotor (004 eq. 7; DESIGN.md): + means +z (FRD) torque on the body.
-YAW_SIGNS = (1.0, -1.0, 1.0, -1.0)
 
 
 @dataclass(frozen=True)
