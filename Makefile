@@ -20,6 +20,7 @@ bench: $(STAMP)
 	$(BIN)/ftcgym bench
 
 test: $(STAMP)
+	$(BIN)/ruff check ftcgym tests
 	$(BIN)/python -m pytest -n 2 -q
 
 perf: $(STAMP)

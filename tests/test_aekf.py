@@ -14,15 +14,15 @@ Thresholds were tuned on seeds 1-6; the flights here use seeds 21-24, not used f
 """
 import numpy as np
 import pytest
+from conftest import LIGHT_WIND, make_env
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.linalg import expm
 
-from conftest import LIGHT_WIND, make_env
 from ftcgym.agents import make_policy
-from ftcgym.models.quadrotor import BEBOP2
 from ftcgym.fdd.aekf import N_X, AugmentedEkfDetector, aekf_wrapper
 from ftcgym.fdd.base import Detector
+from ftcgym.models.quadrotor import BEBOP2
 
 ONSETS = (5.0, 6.0)
 CAP, RATE = 0.5, 0.1

@@ -1,7 +1,8 @@
 """airdata_ekf (001 Sec. 3-5, App. B): prefilter, a_z schedule, one EKF step, and airspeed on a flight.
 
-`python tests/test_airdata_ekf.py 5 100 101 102 103 104` (mean wind 5 m/s, seeds 100-104) measures the airspeed RMSE table (overall and per
-flight phase, 001 Table 5) on fault-free QuadPlaneAutopilot-v0 missions flown with the true airspeed.
+`python tests/test_airdata_ekf.py 5 100 101 102 103 104` (mean wind 5 m/s, seeds 100-104) measures the airspeed
+RMSE table (overall and per flight phase, 001 Table 5) on fault-free QuadPlaneAutopilot-v0 missions flown with
+the true airspeed.
 """
 import math
 import subprocess
@@ -13,10 +14,17 @@ import pytest
 from scipy import signal
 
 import ftcgym  # noqa: F401  (registers the env ids)
-from ftcgym.models.vsqp import VSQP
 from ftcgym.fdd import wrap_with_detector
-from ftcgym.fdd.airdata_ekf import (TABLE_1_Q, TABLE_1_R, AirdataEkfDetector, ComponentForceModel,
-                                    az_covariance_gain, butterworth_prefilter, ekf_step)
+from ftcgym.fdd.airdata_ekf import (
+    TABLE_1_Q,
+    TABLE_1_R,
+    AirdataEkfDetector,
+    ComponentForceModel,
+    az_covariance_gain,
+    butterworth_prefilter,
+    ekf_step,
+)
+from ftcgym.models.vsqp import VSQP
 
 MISSION_WIND = {"mean": [-5.0, 0.0, 0.0], "turbulence": "light"}
 
@@ -52,7 +60,8 @@ def test_model_error_scales_every_coefficient():
     exact = ComponentForceModel(VSQP, 0.0)
     wrong = ComponentForceModel(VSQP, 0.1)
     assert all(s == pytest.approx(1.1) for s in wrong.scale.values())
-    assert wrong.k_f == pytest.approx(1.1 * exact.k_f) and wrong.params.wing_cl0 == pytest.approx(1.1 * exact.params.wing_cl0)
+    assert wrong.k_f == pytest.approx(1.1 * exact.k_f)
+    assert wrong.params.wing_cl0 == pytest.approx(1.1 * exact.params.wing_cl0)
     signs = ComponentForceModel(VSQP, 0.1, error_seed=3).scale
     assert set(np.round(list(signs.values()), 9)) <= {0.9, 1.1}
     # Cruise (18 m/s, 3 deg alpha, wing fully skewed): the wing carries about the weight in the exact model.
@@ -241,7 +250,8 @@ def test_short_flight_airspeed_error():
 if __name__ == "__main__":
     # usage: python tests/test_airdata_ekf.py WIND_SPEED SEED... [coefficient_error=0.1] [error_seed=0]
     args = [a for a in sys.argv[1:] if "=" not in a]
-    kwargs = {k: (int(v) if k == "error_seed" else float(v)) for k, v in (a.split("=") for a in sys.argv[1:] if "=" in a)}
+    pairs = (a.split("=") for a in sys.argv[1:] if "=" in a)
+    kwargs = {k: (int(v) if k == "error_seed" else float(v)) for k, v in pairs}
     speed = float(args[0]) if args else 5.0
     seeds = [int(s) for s in args[1:]] or [100, 101, 102, 103, 104]
     all_rows = []
@@ -249,7 +259,8 @@ if __name__ == "__main__":
         rows, crashed = fly(seed, wind=mission_wind(seed, speed), **kwargs)
         all_rows.append(rows)
         r = phase_rmse(rows)
-        print(f"seed {seed} crashed={crashed} " + " ".join(f"{k} {v[0]:.2f} ({v[1] / 100:.0f} s)" for k, v in r.items()),
+        table = " ".join(f"{k} {v[0]:.2f} ({v[1] / 100:.0f} s)" for k, v in r.items())
+        print(f"seed {seed} crashed={crashed} " + table,
               flush=True)
     r = phase_rmse(np.vstack(all_rows))
     print("pooled " + " ".join(f"{k} {v[0]:.2f} ({v[1] / 100:.0f} s)" for k, v in r.items()))

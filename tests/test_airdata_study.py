@@ -1,5 +1,6 @@
 """airdata-study scoring and the thresholds table, on synthetic data (no simulation)."""
 import dataclasses
+
 import numpy as np
 import pytest
 

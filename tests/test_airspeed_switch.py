@@ -1,6 +1,5 @@
 """airspeed-switch in closed loop on the incipient pitot fault (001 Sec. 7.2.2): which alarm it switches on
 decides how long the autopilot flies on a reading drifting low."""
-import pytest
 
 from ftcgym.agents.airspeed_policies import AirspeedSwitchPolicy
 from ftcgym.benchmark import metrics

@@ -30,7 +30,7 @@ TIME = np.round(np.arange(0.0, 10.0 + 1e-9, 0.1), 10)
 
 
 def between(start, stop):
-    return (TIME >= start - 1e-9) & (TIME < stop - 1e-9)
+    return (start - 1e-9 <= TIME) & (stop - 1e-9 > TIME)
 
 
 # ---- per-episode metrics ----
@@ -173,7 +173,8 @@ class FakeHoverEnv:
         alarm = self.t >= 2.3
         return {
             "time": self.t, "fault": fault, "faults": [{"kind": "rotor_loss", "target": 1, "time": self.onset}],
-            "truth": {"position": np.array([0.0, 0.0, -altitude]), "attitude": np.array([0.0, 0, 0, 1]), "body_rates": np.zeros(3),
+            "truth": {"position": np.array([0.0, 0.0, -altitude]), "attitude": np.array([0.0, 0, 0, 1]),
+                      "body_rates": np.zeros(3),
                       "rotor_speed": np.full(4, 500.0)},
             "reference": {"position": np.array([0.0, 0.0, -5.0]), "velocity": np.zeros(3), "yaw": 0.0},
             "crashed": False, "termination": None,

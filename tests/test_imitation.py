@@ -1,5 +1,6 @@
 """Imitation pre-training (issue 7): the task env's shadow expert and DAgger (`ftcgym.training.imitation`)."""
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -7,9 +8,9 @@ import yaml
 
 import ftcgym  # noqa: F401
 from ftcgym.cli import main
+from ftcgym.task_envs.rotor_loss_recovery import N_FEATURES, RotorLossRecoveryEnv
 from ftcgym.training.config import load_config
 from ftcgym.training.imitation import DaggerSettings
-from ftcgym.task_envs.rotor_loss_recovery import N_FEATURES, RotorLossRecoveryEnv
 
 pytest.importorskip("stable_baselines3")
 
@@ -87,7 +88,7 @@ def test_annealed_fit_ends_below_a_constant_rate_and_restores_the_rate():
 
 
 def test_dagger_pretraining_imitates_the_expert(tmp_path, capsys):
-    document = yaml.safe_load(open(load_config("rotor-loss-recovery").source))
+    document = yaml.safe_load(Path(load_config("rotor-loss-recovery").source).read_text())
     body = document["rotor-loss-recovery"]
     body["env_kwargs"].update(FAST_TASK)
     body["eval"] = None
@@ -104,7 +105,7 @@ def test_dagger_pretraining_imitates_the_expert(tmp_path, capsys):
     last = manifest["pretrain"]["iterations"][-1]   # the annealed final fit lowers the training loss further
     assert last["final_fit"]["epochs"] == 10 and last["final_fit"]["action_mse"] < last["action_mse"]
     printed = capsys.readouterr().out
-    assert (f"2 DAgger iterations, 2000 samples" in printed and f"action mse {last['action_mse']:.4f}, final fit "
+    assert ("2 DAgger iterations, 2000 samples" in printed and f"action mse {last['action_mse']:.4f}, final fit "
             f"action mse {last['final_fit']['action_mse']:.4f}" in printed)
 
     from stable_baselines3 import PPO
@@ -137,9 +138,10 @@ def test_fine_tuning_starts_from_a_saved_model(tmp_path):
     manifest = train(config, tmp_path / "tuned", progress=False, init_from=shipped)
     assert manifest["init_from"] == str(shipped) and "pretrain" not in manifest
     features = np.random.default_rng(1).uniform(-1, 1, (16, N_FEATURES)).astype(np.float32)
-    actions = [PPO.load(folder / "model.zip").predict(load_normalizer(folder / "vecnormalize.pkl").normalize_obs(features),
-                                                      deterministic=True)[0]
-               for folder in (shipped, tmp_path / "tuned")]
+    def act(folder):
+        observation = load_normalizer(folder / "vecnormalize.pkl").normalize_obs(features)
+        return PPO.load(folder / "model.zip").predict(observation, deterministic=True)[0]
+    actions = [act(folder) for folder in (shipped, tmp_path / "tuned")]
     # one tiny PPO update (lr 1e-6) away from the shipped policy; its observation statistics carried over
     assert np.max(np.abs(actions[0] - actions[1])) < 0.05
     config.policy_kwargs = {"net_arch": [32, 32]}

@@ -1,12 +1,12 @@
 """loe_kalman (000 Sec. IV): the Kalman step, the probability test, the filter, and detection in the simulator."""
 import numpy as np
 import pytest
+from conftest import LIGHT_WIND, make_env
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import signal
 from scipy.stats import norm
 
-from conftest import LIGHT_WIND, make_env
 from ftcgym.agents import make_policy
 from ftcgym.fdd import LoeKalmanDetector, loe_kalman_wrapper
 from ftcgym.fdd.loe_kalman import SIGNS_000, failure_probability, kalman_step, lowpass_coefficients
@@ -37,7 +37,7 @@ def test_covariance_stays_symmetric_positive_semidefinite(omega, z, steps):
         x, P = kalman_step(x, P, np.array(z), H, 2e-3 * np.eye(4), np.eye(3))
     assert np.array_equal(P, P.T)
     assert np.linalg.eigvalsh(P).min() > -1e-12
-    assert np.all((0.0 <= x) & (x <= 1.5))
+    assert np.all((x >= 0.0) & (x <= 1.5))
 
 
 @pytest.mark.parametrize("k_hat, var", [(1.0, 0.04), (0.3, 0.01), (0.1, 0.2), (0.25, 1.0)])
@@ -100,6 +100,7 @@ def test_gymnasium_check_env_on_the_wrapped_env():
     """The detector's keys and spaces pass the checker; its only remark is its generic advice to check
     `env.unwrapped`, which would leave the wrapper out."""
     import warnings
+
     from gymnasium.utils.env_checker import check_env
     env = loe_kalman_wrapper(make_env(wind=LIGHT_WIND))
     with warnings.catch_warnings(record=True) as caught:

@@ -1,7 +1,6 @@
 """Nominal controller acceptance (issue 2): hover accuracy, the square task, and that a rotor loss matters."""
 import numpy as np
 import pytest
-
 from conftest import LIGHT_WIND, fly, make_env
 
 

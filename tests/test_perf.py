@@ -1,8 +1,8 @@
 """`ftcgym perf`: every registered detector is timed on a flight of its own vehicle."""
 import math
 
-from ftcgym.fdd import DETECTORS
 from ftcgym.cli.perf import detector_costs
+from ftcgym.fdd import DETECTORS
 
 
 def test_every_detector_gets_a_finite_cost_per_update():

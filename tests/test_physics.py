@@ -1,10 +1,10 @@
 """Physics of Quadrotor-v0 against closed-form values (000 eq. 8-9, 004 eq. 7, free fall, saturation)."""
 import numpy as np
 import pytest
+from conftest import hover_command, make_env
 
-from conftest import fly, hover_command, make_env
-from ftcgym.models.sensors import GYRO_LIMIT
 from ftcgym.models.quadrotor import BEBOP2, GRAVITY, MUELLER2014, make_params
+from ftcgym.models.sensors import GYRO_LIMIT
 
 
 @pytest.mark.parametrize("vehicle", ["bebop2", "mueller2014"])

@@ -4,9 +4,16 @@ import pytest
 
 from ftcgym.agents import make_policy
 from ftcgym.agents.airspeed_policies import AirspeedSwitchPolicy, SyntheticOnlyPolicy
+from ftcgym.fdd.pitot_detection import (
+    CUSUM_DEFAULT,
+    TABLE_2_DERIVATIVE,
+    TABLE_2_NORM,
+    PitotConfirmation,
+    PitotResidualDetector,
+    ResidualCusum,
+    ThresholdCriterion,
+)
 from ftcgym.models.vsqp import VSQP
-from ftcgym.fdd.pitot_detection import (CUSUM_DEFAULT, TABLE_2_DERIVATIVE, TABLE_2_NORM, PitotConfirmation,
-                                       PitotResidualDetector, ResidualCusum, ThresholdCriterion)
 
 HZ = 25.0
 

@@ -9,11 +9,19 @@ import pytest
 
 import ftcgym  # noqa: F401  (registers the env ids)
 from ftcgym.benchmark.metrics import isolation_target
+from ftcgym.fdd import wrap_with_detector
+from ftcgym.fdd.propulsion_bayes import (
+    FAULT_PRIOR,
+    HEALTH_PRIOR,
+    MODES,
+    BayesFilter,
+    PropulsionBayesDetector,
+    PropulsionModel,
+    ScalarKalmanFilter,
+    _BlockAverager,
+)
 from ftcgym.models.pusher import steady_state_current
 from ftcgym.models.vsqp import VSQP
-from ftcgym.fdd import wrap_with_detector
-from ftcgym.fdd.propulsion_bayes import (FAULT_PRIOR, HEALTH_PRIOR, MODES, BayesFilter, PropulsionBayesDetector,
-                                         PropulsionModel, ScalarKalmanFilter, _BlockAverager)
 
 FAULT_HANDLES = {"propeller_icing": "theta_1", "viscous_friction": "c_v", "static_friction": "I_0"}
 
@@ -32,11 +40,13 @@ def synthetic_flight(detector, seconds, fault=None, onset=150.0, factor=1.1, hz=
         t = k * dt
         V += dt / 2.0 * (18.0 + detector.airspeed_request - V)
         omega = 40.0 * V + 20.0 * math.sin(0.2 * t) + 30.0 * math.sin(1.3 * t)
-        omega_dot = 40.0 * (18.0 + detector.airspeed_request - V) / 2.0 + 4.0 * math.cos(0.2 * t) + 39.0 * math.cos(1.3 * t)
+        omega_dot = (40.0 * (18.0 + detector.airspeed_request - V) / 2.0 + 4.0 * math.cos(0.2 * t)
+                     + 39.0 * math.cos(1.3 * t))
         values = dict(nominal)
         if fault is not None and t >= onset:
             values[FAULT_HANDLES[fault]] *= 1.0 + (factor - 1.0) * (min(1.0, (t - onset) / ramp) if ramp else 1.0)
-        current = steady_state_current(VSQP, omega, V, **values) + VSQP.pusher_inertia * omega_dot / VSQP.pusher_motor_constant
+        current = (steady_state_current(VSQP, omega, V, **values)
+                   + VSQP.pusher_inertia * omega_dot / VSQP.pusher_motor_constant)
         readings = {"pusher_speed": [omega + speed_noise * rng.standard_normal()],
                     "pusher_current": [current + current_noise * rng.standard_normal()],
                     "pitot_airspeed": [V + airspeed_noise * rng.standard_normal()]}
@@ -135,7 +145,8 @@ def test_isolation_waits_for_the_fault_to_develop(fault):
     det = PropulsionBayesDetector(VSQP, 50.0, perturbation=4.0)
     steps = []
     synthetic_flight(det, 400.0, fault, ramp=50.0,
-                     on_sample=lambda t: steps.append(t) if det.airspeed_request > 0 and det.phase == "isolating" else None)
+                     on_sample=lambda t: steps.append(t) if det.airspeed_request > 0 and det.phase == "isolating"
+                     else None)
     status = det.status()
     assert 150.0 < status["alarm_time"] <= 190.0
     assert steps[0] >= 190.0                                       # not on the ramp: >= 80% developed

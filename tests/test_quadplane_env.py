@@ -83,7 +83,8 @@ def test_pitot_blockage_zero_and_incipient_and_gnss_fault_reach_the_observation(
     faults = [{"kind": "pitot_blockage", "time": 1.0}, {"kind": "gnss", "time": 1.0}]
     env = gym.make("ftcgym/QuadPlane-v0", faults=faults, wind={"mean": [0.0, 0.0, 0.0], "turbulence": "none"})
     env.reset(seed=0)
-    env.unwrapped.world.reset(np.array([0.0, 0.0, -30.0]), np.array([0, 0, 0, 1.0]), np.array([15.0, 0, 0]), np.zeros(3))
+    env.unwrapped.world.reset(np.array([0.0, 0.0, -30.0]), np.array([0, 0, 0, 1.0]), np.array([15.0, 0, 0]),
+                              np.zeros(3))
     env.unwrapped._read_state()
     readings = []
     for _ in range(150):

@@ -8,7 +8,8 @@ SENSORS = ("pitot_airspeed", "gnss_velocity", "skew", "pusher_speed", "hover_rot
 
 
 def schedule(*specs):
-    return FaultSchedule(resolve(parse_faults(list(specs), 4, SENSORS, QUADPLANE_KINDS), np.random.default_rng(0), 4), 4)
+    parsed = parse_faults(list(specs), 4, SENSORS, QUADPLANE_KINDS)
+    return FaultSchedule(resolve(parsed, np.random.default_rng(0), 4), 4)
 
 
 def readings():

@@ -148,9 +148,9 @@ def test_hover_at_hover_speed_is_balanced():
 
 def test_rotor_geometry_follows_the_skew():
     at_hover, at_cruise = P.hover_rotor_positions(0.0), P.hover_rotor_positions(HALF_PI)
-    l = 0.435                                                   # 001 App. B: (470 + 400) / 2 mm
-    assert at_hover[:, :2] == pytest.approx(np.array([[l, 0], [0, l], [-l, 0], [0, -l]]), abs=1e-12)
-    assert at_cruise[:, :2] == pytest.approx(np.array([[l, 0], [-l, 0], [-l, 0], [l, 0]]), abs=1e-12)
+    arm = 0.435                                                 # 001 App. B: (470 + 400) / 2 mm
+    assert at_hover[:, :2] == pytest.approx(np.array([[arm, 0], [0, arm], [-arm, 0], [0, -arm]]), abs=1e-12)
+    assert at_cruise[:, :2] == pytest.approx(np.array([[arm, 0], [-arm, 0], [-arm, 0], [arm, 0]]), abs=1e-12)
     axes = P.hover_thrust_axes(0.6)
     assert np.linalg.norm(axes, axis=1) == pytest.approx(np.ones(4))
     assert -axes[:, 2] == pytest.approx(np.full(4, math.cos(math.radians(3.0))))

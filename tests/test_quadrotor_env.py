@@ -3,9 +3,9 @@ import warnings
 
 import numpy as np
 import pytest
+from conftest import LIGHT_WIND, hover_command, make_env
 from gymnasium.utils.env_checker import check_env
 
-from conftest import LIGHT_WIND, hover_command, make_env
 from ftcgym.agents import make_policy
 from ftcgym.models import FaultSpec
 

@@ -1,4 +1,5 @@
-"""The recovery task's features (`ftcgym.task_envs.rotor_loss_recovery.recovery_features`): the heading and the half turn
+"""The recovery task's features (`ftcgym.task_envs.rotor_loss_recovery.recovery_features`): the heading and the
+half turn
 about body z, symmetries of a quadrotor's recovery, leave them unchanged."""
 import numpy as np
 import pytest

@@ -2,10 +2,10 @@
 limits, and the simulator holding it open loop."""
 import numpy as np
 import pytest
+from conftest import make_env
 from scipy.optimize import fsolve
 from scipy.spatial.transform import Rotation
 
-from conftest import make_env
 from ftcgym.agents import relaxed_hover_equilibrium
 from ftcgym.agents.relaxed_hover import body_moment
 from ftcgym.models.quadrotor import GRAVITY, MUELLER2014, make_params

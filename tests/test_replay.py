@@ -14,6 +14,7 @@ import pytest
 
 import ftcgym  # noqa: F401  (registers the env ids)
 from ftcgym.agents import make_policy
+from ftcgym.fdd.loe_kalman import loe_kalman_wrapper
 from ftcgym.fdd.logs import (
     FTCGYM_ROTOR_ORDER,
     PX4_QUAD_X_ORDER,
@@ -24,7 +25,6 @@ from ftcgym.fdd.logs import (
     read_csv,
     read_npz,
 )
-from ftcgym.fdd.loe_kalman import loe_kalman_wrapper
 from ftcgym.fdd.recording import RecordingWrapper
 from ftcgym.fdd.replay import ROTOR_SIGNS, identify_effectiveness, make_detector, replay
 

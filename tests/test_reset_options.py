@@ -70,7 +70,8 @@ def test_the_autopilot_env_passes_options_to_its_quadplane():
 
 @pytest.mark.parametrize("env_id", ["ftcgym/Quadrotor-v0", "ftcgym/QuadPlane-v0"])
 @pytest.mark.parametrize("options, message", [
-    ({"fault": []}, r"reset options: unknown key\(s\) \['fault'\]; accepted: \['faults', 'wind', 'vehicle_overrides'\]"),
+    ({"fault": []},
+     r"reset options: unknown key\(s\) \['fault'\]; accepted: \['faults', 'wind', 'vehicle_overrides'\]"),
     ({"faults": [{"kind": "loe", "target": 9}]}, r"reset options: faults\[0\].target: 9 is not accepted for loe"),
     ({"wind": {"speed": 3}}, r"reset options: wind config: unknown key\(s\) \['speed'\]"),
     ({"vehicle_overrides": {"mas": 1.0}}, r"reset options: vehicle_overrides: unknown field\(s\) \['mas'\]"),
@@ -84,6 +85,7 @@ def test_bad_options_are_rejected_as_the_make_time_kwargs_are(env_id, options, m
 
 def test_overrides_that_widen_the_observation_space_belong_to_gym_make():
     env = gym.make("ftcgym/Quadrotor-v0")
-    with pytest.raises(ValueError, match=r"widen the bounds of observation 'rotor_speed'.*pass these overrides to gym.make"):
+    message = r"widen the bounds of observation 'rotor_speed'.*pass these overrides to gym.make"
+    with pytest.raises(ValueError, match=message):
         env.reset(seed=0, options={"vehicle_overrides": {"omega_max": 2000.0}})
     env.close()

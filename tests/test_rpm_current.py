@@ -4,11 +4,11 @@ import itertools
 import numpy as np
 import pytest
 
-from ftcgym.models.pusher import PusherMotor, steady_state_current
-from ftcgym.models.vsqp import VSQP
 from ftcgym.fdd.airdata_ekf import TakeoffGate
 from ftcgym.fdd.propulsion_bayes import PropulsionModel
 from ftcgym.fdd.rpm_current import RpmCurrentCheck, speed_from_current
+from ftcgym.models.pusher import PusherMotor, steady_state_current
+from ftcgym.models.vsqp import VSQP
 
 HZ = 100.0
 #: the detector's model errs by 10%: all coefficients high (error_seed None), or with seeded random signs

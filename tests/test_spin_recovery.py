@@ -2,14 +2,14 @@
 full flight: loss, detection, recovery, 10 s of position hold, landing."""
 import numpy as np
 import pytest
+from conftest import make_env
 from scipy.spatial.transform import Rotation
 
-from conftest import make_env
 from ftcgym.agents import POLICIES, OracleSpinPolicy, SpinAfterAlarmPolicy, SpinRecoveryController, make_policy
 from ftcgym.agents.spin_recovery import thrust_axis_reference_for
 from ftcgym.benchmark import metrics
-from ftcgym.models.quadrotor import GRAVITY
 from ftcgym.fdd import wrap_with_detector
+from ftcgym.models.quadrotor import GRAVITY
 
 
 def test_spin_policies_are_registered():

@@ -2,6 +2,7 @@
 (model, VecNormalize statistics, checkpoints, benchmark evaluations, manifest), `LearnedPolicy` and
 `ftcgym evaluate`. Kept short: a few thousand steps in all."""
 import json
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -10,8 +11,8 @@ import yaml
 
 import ftcgym  # noqa: F401
 from ftcgym.cli import main
-from ftcgym.training.config import builtin_tasks, load_config
 from ftcgym.task_envs.rotor_loss_recovery import N_FEATURES, RotorLossRecoveryEnv
+from ftcgym.training.config import builtin_tasks, load_config
 
 pytest.importorskip("stable_baselines3")
 
@@ -21,7 +22,7 @@ SHORT_EVAL = {"max_episode_seconds": 3.0, "faults": [{"kind": "rotor_loss", "tar
 
 def _config(tmp_path, n_envs=1, steps=1024):
     """A copy of the built-in config, shrunk to seconds of training."""
-    document = yaml.safe_load(open(load_config("rotor-loss-recovery").source))
+    document = yaml.safe_load(Path(load_config("rotor-loss-recovery").source).read_text())
     body = document["rotor-loss-recovery"]
     body["env_kwargs"].update(FAST_TASK)
     body.pop("pretrain")                        # PPO alone here; tests/test_imitation.py covers DAgger
@@ -56,7 +57,7 @@ def test_builtin_config_and_overrides():
 
 
 def test_config_names_the_activation_and_rejects_an_unknown_one(tmp_path):
-    document = yaml.safe_load(open(load_config("rotor-loss-recovery").source))
+    document = yaml.safe_load(Path(load_config("rotor-loss-recovery").source).read_text())
     document["rotor-loss-recovery"]["PPO"]["policy_kwargs"]["activation_fn"] = "sigmoidish"
     path = tmp_path / "bad.yaml"
     path.write_text(yaml.safe_dump(document))

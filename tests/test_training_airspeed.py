@@ -1,6 +1,7 @@
 """Task airspeed-source (issue 7): the AirspeedSource-v0 env, a short `ftcgym train` run that loads and acts
 deterministically as `LearnedAirspeedPolicy`, and the shipped `learned-airspeed` policy."""
 import json
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -9,10 +10,16 @@ import yaml
 
 import ftcgym  # noqa: F401
 from ftcgym.cli import main
-from ftcgym.training.policy import LearnedAirspeedPolicy
-from ftcgym.task_envs.airspeed_source import (N_FEATURES, AirspeedSourceEnv, airspeed_features,
-                                           airspeed_reward, blend, to_weight)
+from ftcgym.task_envs.airspeed_source import (
+    N_FEATURES,
+    AirspeedSourceEnv,
+    airspeed_features,
+    airspeed_reward,
+    blend,
+    to_weight,
+)
 from ftcgym.training.config import builtin_tasks, load_config
+from ftcgym.training.policy import LearnedAirspeedPolicy
 
 pytest.importorskip("stable_baselines3")
 
@@ -122,7 +129,7 @@ def _fly_benchmark_env(policy, seconds=8.0, seed=0):
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory):
     tmp_path = tmp_path_factory.mktemp("train_airspeed")
-    document = yaml.safe_load(open(load_config("airspeed-source").source))
+    document = yaml.safe_load(Path(load_config("airspeed-source").source).read_text())
     body = document["airspeed-source"]
     body["env_kwargs"].update(FAST_TASK)
     body["eval"] = None

@@ -8,7 +8,6 @@ import json
 from pathlib import Path
 
 import numpy as np
-
 from matplotlib.figure import Figure  # a bare Figure renders with Agg: no pyplot, no global backend
 
 from ftcgym.benchmark.metrics import EPISODE_FIELDS, SUMMARY_FIELDS

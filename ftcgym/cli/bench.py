@@ -49,7 +49,8 @@ def run(args, argv: list[str]) -> int:
     from ftcgym.benchmark.scenarios import default_scenarios
 
     try:
-        scenarios = [with_detector(s, args.detector, args.detector_kwargs) for s in args.scenario or default_scenarios()]
+        scenarios = [with_detector(s, args.detector, args.detector_kwargs)
+                     for s in args.scenario or default_scenarios()]
     except ValueError as error:
         raise SystemExit(f"ftcgym bench: --detector-kwargs: {error}") from None
     started = time.perf_counter()

@@ -3,8 +3,8 @@
 Measures, single process, resets included: env steps per second (agent and physics) and simulated seconds
 per wall second for Quadrotor-v0 with random actions (at 240/240 Hz and the 500/500 Hz defaults) and with
 the nominal controller in the loop, and for QuadPlane-v0 with random actions (500 Hz physics, agent at 100
-and 500 Hz) and with the mission autopilot; mean reset time; peak resident memory and its growth over the run (a leak check);
-and the cost of one update of each fault detector (000 reports 18 us per step on a Cortex-A9 in C++).
+and 500 Hz) and with the mission autopilot; mean reset time; peak resident memory and its growth over the run (a
+leak check); and the cost of one update of each fault detector (000 reports 18 us per step on a Cortex-A9 in C++).
 Sensors, Dryden wind and a fault schedule are on in every case.
 """
 from __future__ import annotations
@@ -49,7 +49,8 @@ def measure(env_id: str, env_kwargs: dict, actor: str, steps: int, seed: int) ->
     # Random actions come from one numpy draw up front: Box.sample() alone costs ~50 us a call, which
     # would measure gymnasium's sampler rather than the env.
     space = env.action_space
-    random_actions = np.random.default_rng(seed).uniform(space.low, space.high, (steps, *space.shape)).astype(np.float32)
+    rng = np.random.default_rng(seed)
+    random_actions = rng.uniform(space.low, space.high, (steps, *space.shape)).astype(np.float32)
     policy = make_policy(actor, env) if actor != "random" else None
     obs, info = env.reset(seed=seed)
     resets, reset_time, episode = 0, 0.0, 0
