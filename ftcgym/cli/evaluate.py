@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import time
 
-from .common import json_object, positive_int, scenario
+from .common import detector_name, json_object, positive_int, scenario
 
 
 def add_parser(subparsers) -> None:
@@ -19,17 +19,23 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--seed", type=int, default=0, metavar="S", help="base seed (default: 0)")
     parser.add_argument("--env-kwargs", type=json_object, default={}, metavar="JSON",
                         help="JSON object merged (top-level keys) into the scenario's gym.make kwargs")
+    parser.add_argument("--detector", metavar="NAME", type=detector_name,
+                        help="detector to wrap the env with and score (default: the scenario's), or MODULE:ATTR")
+    parser.add_argument("--detector-kwargs", type=json_object, default={}, metavar="JSON",
+                        help="JSON object of detector arguments")
     parser.set_defaults(run=run)
 
 
 def run(args, argv: list[str]) -> int:
     from ftcgym.benchmark.report import format_table
+    from ftcgym.benchmark.results import with_detector
     from ftcgym.training.evaluate import evaluate_model
 
     started = time.perf_counter()
     try:
-        summary, episodes = evaluate_model(args.model, args.scenario, args.episodes, args.seed, args.env_kwargs)
-    except FileNotFoundError as error:
+        scenario = with_detector(args.scenario, args.detector, args.detector_kwargs)
+        summary, episodes = evaluate_model(args.model, scenario, args.episodes, args.seed, args.env_kwargs)
+    except (ValueError, FileNotFoundError) as error:
         raise SystemExit(f"ftcgym evaluate: {error}") from None
     print(format_table(summary))
     print(f"\n{len(episodes)} episodes in {time.perf_counter() - started:.1f} s")

@@ -6,11 +6,12 @@ with `ftcgym bench`'s for the same scenario and seed.
 """
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 from ftcgym.benchmark import metrics
 from ftcgym.benchmark.runner import _native, episode_seed, make_env, roll_out, score_episode
 from ftcgym.benchmark.scenarios import Scenario, get_scenario
+from ftcgym.fdd import published_detector
 
 DEFAULT_SCENARIO = "quad-rotor-loss-hover"
 POLICY_NAME = "learned"
@@ -25,8 +26,8 @@ def score_policy(make_policy: Callable, scenario: Scenario | str = DEFAULT_SCENA
         env = make_env(scenario, env_overrides)
         try:
             episode = episode_seed(seed, index)
-            values = {"scenario": scenario.name, "policy": policy_name, "seed": int(episode),
-                      **score_episode(roll_out(env, make_policy(env), episode, scenario.detector))}
+            log = roll_out(env, make_policy(env), episode, published_detector(env, scenario.detector))
+            values = {"scenario": scenario.name, "policy": policy_name, "seed": int(episode), **score_episode(log)}
         finally:
             env.close()
         rows.append({name: _native(values[name]) for name in metrics.EPISODE_FIELDS})
