@@ -12,6 +12,7 @@ Anything else is a ValueError that says what was tried and what is accepted.
 """
 from __future__ import annotations
 
+import difflib
 from dataclasses import dataclass
 from importlib import import_module, metadata
 
@@ -63,9 +64,11 @@ class Registry:
                                  f"{self.group!r} could not be loaded ({error})") from None
         if ":" in name:
             return load_reference(name, self.kind)
-        raise ValueError(f"{self.kind}: unknown name {name!r}; tried the built-in names and the entry points of "
-                         f"group {self.group!r}; accepted: {self.names()} or MODULE:ATTR "
-                         f"(an importable module and an attribute of it)")
+        close = difflib.get_close_matches(name, self.names(), n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        raise ValueError(f"{self.kind}: unknown name {name!r}{hint}; tried the built-in names and the entry points "
+                         f"of group {self.group!r}; accepted: {self.names()} or MODULE:ATTR (an importable module "
+                         f"and an attribute of it)")
 
 
 def load_reference(reference: str, kind: str):

@@ -77,8 +77,8 @@ def test_the_python_api_takes_module_references(monkeypatch):
 @pytest.mark.parametrize("name, message", [
     ("no_such_module:Thing", r"policy: 'no_such_module:Thing': module 'no_such_module' could not be imported"),
     ("ftcgym.agents:NoSuchPolicy", r"module 'ftcgym.agents' has no attribute 'NoSuchPolicy'"),
-    ("nomnal", r"policy: unknown name 'nomnal'; tried the built-in names and the entry points of group "
-               r"'ftcgym.policies'; accepted: \['nominal', .*\] or MODULE:ATTR"),
+    ("nomnal", r"policy: unknown name 'nomnal' \(did you mean 'nominal'\?\); tried the built-in names and the "
+               r"entry points of group 'ftcgym.policies'; accepted: \['nominal', .*\] or MODULE:ATTR"),
 ])
 def test_an_unknown_or_unimportable_policy_says_what_was_tried(name, message):
     with pytest.raises(ValueError, match=message):
