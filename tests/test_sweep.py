@@ -67,7 +67,8 @@ def test_vehicle_overrides_merge_into_the_scenarios_env_kwargs():
     ({"scenarios": {"quad-nowhere": 3}}, r"scenarios: scenario: unknown name 'quad-nowhere'; .*registered:"),
     ({"scenarios": {"quad-hover": 0}}, r"scenarios.quad-hover: must be an integer >= 1, got 0"),
     ({"seeds": 3}, r"seeds: must be a list, got 3"),
-    ({"policies": ["autopilot-x"]}, r"policies: policy: unknown name 'autopilot-x' \(did you mean 'autopilot'\?\); .*accepted:"),
+    ({"policies": ["autopilot-x"]},
+     r"policies: policy: unknown name 'autopilot-x' \(did you mean 'autopilot'\?\); .*accepted:"),
     ({"parameter_sets": [{"name": "a"}, {"name": "a"}], "grid": {}}, r"names must be unique, repeated: \['a'\]"),
     ({"parameter_sets": [{"name": "G/2"}]}, r"names must not contain '/': \['G/2'\]"),
 ])
