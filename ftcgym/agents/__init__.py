@@ -5,8 +5,13 @@
 """
 from __future__ import annotations
 
-from .airspeed_policies import (AirspeedSwitchPolicy, AutopilotPolicy, OracleAirspeedPolicy, PitotOnlyPolicy,
-                                SyntheticOnlyPolicy)
+from .airspeed_policies import (
+                                AirspeedSwitchPolicy,
+                                AutopilotPolicy,
+                                OracleAirspeedPolicy,
+                                PitotOnlyPolicy,
+                                SyntheticOnlyPolicy,
+)
 from .base import Policy, policy_view, thrust_axis_reference
 from .catalogue import POLICIES, flies_airspeed, is_quadplane, make_policy
 from .quadrotor_control import ControllerGains, NominalController, allocation_matrix

@@ -27,11 +27,10 @@ class AirspeedSwitchPolicy:
 
     `tests`: the pitot tests it switches on, by default both that the detector runs on the residual: 001's
     Table 2 thresholds (Sec. 6.1) and the CUSUM that Sec. 7.2.2 and 8.1 recommend for incipient faults, tuned
-    to the same false-alarm budget (0 false alarms of either in the README's 10.29 fault-free hours). Table 2
-    alone alarms on the -2.5 m/s^2 ramp ~2.45 s after onset, when the reading is ~6 m/s low; the autopilot
-    flying on it until then rolled past 45 deg in most flights (tuning seeds `--seed 900`: median largest roll
-    90 deg, 8/40 crashed). The CUSUM alarms ~0.8 s sooner (largest roll 47 deg, 0/40 crashed); on an abrupt
-    fault Table 2's derivative test is the first (0.1 s).
+    to the same false-alarm budget. Table 2 alone alarms on the -2.5 m/s^2 ramp ~2.45 s after onset, when the
+    reading is ~6 m/s low, and the autopilot flying on it until then rolls past 45 deg in most flights. The
+    CUSUM alarms ~0.8 s sooner; on an abrupt fault Table 2's derivative test is the first (0.1 s). Measured on
+    tuning flights; see docs/measurements.md, 'Tuning record: agents/airspeed_policies.py'.
     """
 
     detector = "airdata_ekf"

@@ -10,8 +10,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.linalg import solve_continuous_are
 
-from ..models.quadrotor import YAW_SIGNS, QuadrotorParams
 from ..models.geometry import cross
+from ..models.quadrotor import YAW_SIGNS, QuadrotorParams
 from .relaxed_hover import body_moment, rotor_roles
 
 if TYPE_CHECKING:
@@ -169,7 +169,7 @@ class ScheduledAxisLqr:
         -arrest_gain * (p, q) (least squares along its one direction), taken from the slower rotor of the pair
         while the faster stays at f_max, so the spin and the propellers' momentum keep building up. A linear
         design about the relaxed hover does not see this phase: from the ~6 rad/s a Bebop 2 has at a 60 ms
-        alarm it let the axis settle 55 deg off (issue 4 report).
+        alarm it lets the axis settle far off (docs/measurements.md, 'Tuning record: agents/spin_recovery.py').
         """
         a, b = np.flatnonzero(self.pair)
         per_newton = (self.balance_rows[:2, a] - self.balance_rows[:2, b]) / 2.0 / self.inertia[:2]

@@ -9,8 +9,13 @@ from __future__ import annotations
 from ftcgym.registry import Entry, Registry
 
 from ..models.vsqp import VsqpParams
-from .airspeed_policies import (AirspeedSwitchPolicy, AutopilotPolicy, OracleAirspeedPolicy, PitotOnlyPolicy,
-                                SyntheticOnlyPolicy)
+from .airspeed_policies import (
+    AirspeedSwitchPolicy,
+    AutopilotPolicy,
+    OracleAirspeedPolicy,
+    PitotOnlyPolicy,
+    SyntheticOnlyPolicy,
+)
 from .base import Policy, check_policy
 from .quadrotor_control import NominalController
 from .spin_policies import OracleSpinPolicy, SpinAfterAlarmPolicy

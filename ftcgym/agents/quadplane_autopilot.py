@@ -8,13 +8,14 @@ airspeed therefore corrupts all four, which is what made pitot faults destabilis
 airspeed=...)`), so a policy that chooses the airspeed source (QuadPlaneAutopilot-v0) decides its fate.
 
 Structure, per agent step:
-1. Mission (`MissionPlan`): take-off, hover, transition heading north, the circuit of `MissionTask`, back
+1. Mission (`_advance_phase`, phases `PHASES`): take-off, hover, transition heading north, the circuit of
+   `MissionTask`, back
    transition, return, landing. Phase changes use navigation data and the given airspeed.
 2. Guidance: a desired NED acceleration from position/velocity errors (quad phases) or from the circle's
    cross-track error and the altitude (forward flight). In cruise the heading is not commanded: the circle's
    course rate is flown as a heading rate and the fin keeps the nose in the relative wind, as a fixed-wing
    autopilot coordinates its turns (PX4's fixed-wing yaw controller). Holding the nose on the ground course
-   instead forced the crab angle into sideslip (14 deg, the rudder at its throw, in an 8-9 m/s crosswind).
+   instead forces the crab angle into sideslip, which in a strong crosswind the rudder cannot hold.
 3. Outer loop: the acceleration becomes an attitude and a hover-rotor collective. The wing's lift, from the
    model at the given airspeed, the measured skew and alpha ~ pitch (001 eq. 8.6), is subtracted from what
    the rotors must carry; in forward flight the pitch follows the altitude error around the trim pitch. On
@@ -34,11 +35,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..models.constants import GRAVITY
+from ..models.geometry import cross, rotation_from_euler, rotation_matrix
 from ..models.pusher import throttle_for_speed
 from ..models.quadplane_aero import aero_wrench, skew_schedule
 from ..models.tasks import MissionTask
-from ..models.constants import GRAVITY
-from ..models.geometry import rotation_from_euler, cross, rotation_matrix
 
 PHASES = ("takeoff", "hover", "transition", "cruise", "back_transition", "return", "land", "landed")
 QUAD_PHASES = ("takeoff", "hover", "return", "land")
@@ -86,10 +87,10 @@ class AutopilotGains:
     transition_done_speed_margin: float = 1.0   # m/s below cruise speed that ends the transition
     # s over which the hover rotors hand the weight over to the wing on entering cruise: they keep making up
     # what the wing does not carry at the actual alpha (the transition's rule), faded out linearly into the
-    # cruise rule (lift at the trim alpha). Switched in one step, they fell from ~450 to ~50 rad/s in 0.2 s
-    # while alpha was still ~-12 deg against a trim of ~+4 deg (upwind in 7 m/s), and the airframe dived,
-    # enough to raise a false pitot alarm. PX4's VTOL front transition likewise blends the multicopter motors
-    # out over a blend time after the transition airspeed is reached rather than cutting them.
+    # cruise rule (lift at the trim alpha). Switched in one step, the rotors drop out while alpha is still far
+    # below trim, and the airframe dives, enough to raise a false pitot alarm. PX4's VTOL front transition
+    # likewise blends the multicopter motors out over a blend time after the transition airspeed is reached
+    # rather than cutting them. Measurements: docs/measurements.md, 'Tuning record: agents/quadplane_autopilot.py'.
     transition_blend_time: float = 1.5
     back_transition_done_speed: float = 3.0     # m/s
     back_transition_decel: float = 1.5          # m/s^2, typical deceleration of the back transition
@@ -178,10 +179,12 @@ class QuadPlaneAutopilot:
                 # decelerate along the way the nose points now, without sideslip: on the arc that is up to
                 # ~35 deg off the mission heading, and a sideslipping skewed wing rolls the airframe over
                 self._track = (nav.position[:2].copy(), nav.heading)
-        elif self.phase == "back_transition" and min(airspeed, np.hypot(*nav.velocity[:2])) < g.back_transition_done_speed:
+        elif (self.phase == "back_transition"
+              and min(airspeed, np.hypot(*nav.velocity[:2])) < g.back_transition_done_speed):
             self._enter("return")
             self._heading = nav.heading          # turn home from where the nose points
-        elif self.phase == "return" and np.linalg.norm(nav.position - home) < 3.0 and np.linalg.norm(nav.velocity) < 1.5:
+        elif (self.phase == "return" and np.linalg.norm(nav.position - home) < 3.0
+              and np.linalg.norm(nav.velocity) < 1.5):
             self._enter("land")
         elif self.phase == "land" and altitude < 0.5 * self.params.body_size[2] + 0.15 and abs(nav.velocity[2]) < 0.2:
             self._enter("landed")
@@ -289,7 +292,8 @@ class QuadPlaneAutopilot:
             right = np.array([-math.sin(yaw), math.cos(yaw)])
             bank_limit = math.radians(self.gains.max_bank_deg)
             bank = float(np.clip(math.atan2(float(accel[:2] @ right), GRAVITY), -bank_limit, bank_limit))
-            pitch = float(np.clip(pitch, -math.radians(self.gains.max_pitch_deg), math.radians(self.gains.max_pitch_deg)))
+            pitch_limit = math.radians(self.gains.max_pitch_deg)
+            pitch = float(np.clip(pitch, -pitch_limit, pitch_limit))
             R_des = rotation_from_euler(bank, pitch, yaw)
         thrust = float(-force @ R_des[:, 2])                              # along -z_des, rotors + wing
         needed = thrust - self._wing_lift(nav, airspeed, pitch is not None)
@@ -314,9 +318,9 @@ class QuadPlaneAutopilot:
         flight-path angle (001 eq. 8.6 takes the pitch, i.e. level flight) or, in cruise, at the most the pitch
         loop may ask of the wing (trim alpha + `cruise_alpha_margin_deg`, at most `cruise_alpha_max_deg`):
         there the pitch loop flies the altitude with the wing, and the rotors make up only what the wing cannot
-        carry at this airspeed. Counting only the lift at the trim alpha switched the rotors on in every gust's
-        sink and steep turn (~80 times per mission in 8 m/s wind), and their drag in the cross-flow, which
-        this autopilot does not model, pitched the airframe at up to 2.7 rad/s."""
+        carry at this airspeed. Counting only the lift at the trim alpha switches the rotors on in every gust's
+        sink and steep turn, and their drag in the cross-flow, which this autopilot does not model, pitches the
+        airframe."""
         if airspeed < 1.0 or self.phase in QUAD_PHASES:    # hovering, the flow's direction is unknown
             return 0.0
         alpha = nav.alpha
@@ -441,7 +445,8 @@ class QuadPlaneAutopilot:
             wanted = 1.0
         else:
             error = self.task.cruise_airspeed + self.airspeed_offset - airspeed
-            self._throttle_integral = float(np.clip(self._throttle_integral + g.airspeed_i * error * self.dt, -0.3, 0.3))
+            integral = self._throttle_integral + g.airspeed_i * error * self.dt
+            self._throttle_integral = float(np.clip(integral, -0.3, 0.3))
             wanted = float(np.clip(self._cruise_throttle() + g.airspeed_p * error + self._throttle_integral, 0.0, 1.0))
         step = g.throttle_slew * self.dt
         self._throttle = float(np.clip(wanted, self._throttle - step, self._throttle + step))
@@ -483,8 +488,8 @@ class _Navigation:
         self.airspeed = airspeed
         # angle of attack ~ pitch - the flight-path angle through the air, asin(climb / airspeed) with the wind
         # taken as horizontal (no vane: 001 Sec. 3, the VSQP has none). The path angle over the ground (climb /
-        # ground speed) overstated it upwind in strong wind (9 m/s over the ground at 18 m/s airspeed: twice the
-        # angle), and the model moment at that alpha fed every sink back into a pitch-up.
+        # ground speed) overstates it upwind in strong wind, and the model moment at that alpha would feed every
+        # sink back into a pitch-up.
         climb = -float(self.velocity[2])
         self.alpha = self.pitch - math.asin(float(np.clip(climb / max(airspeed, 3.0), -1.0, 1.0)))
 

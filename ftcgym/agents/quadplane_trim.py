@@ -9,8 +9,8 @@ Which unknowns are free depends on the flight regime (4 actuators for 3 equation
 - wing-borne: angle of attack, pusher speed and stabilator; hover rotors stopped. Accepted when the
   angle of attack stays at or below `alpha_cap(skew)`.
 - rotor-assisted (hover, transition, below the stall speed): the angle of attack is fixed at
-  `alpha_cap(skew)`, which grows from 0 in hover to 10 deg at full skew (the largest alpha the issue's
-  trims may use), so the wing takes as much of the weight as it can at that attitude; pusher speed and
+  `alpha_cap(skew)`, which grows from 0 in hover to 10 deg at full skew (MAX_TRIM_ALPHA, the largest alpha a
+  trim may use), so the wing takes as much of the weight as it can at that attitude; pusher speed and
   collective hover-rotor speed are free, and the pitch moment is taken by the stabilator or, where it
   lacks authority (low airspeed), by a front/rear rotor thrust difference.
 """
@@ -21,12 +21,12 @@ import math
 import numpy as np
 from scipy.optimize import least_squares
 
+from ftcgym.models.constants import GRAVITY
 from ftcgym.models.pusher import pusher_thrust, steady_state_current, throttle_for_speed
 from ftcgym.models.quadplane_aero import aero_wrench, skew_schedule, stall_speed, wing_wrench
-from ftcgym.models.constants import GRAVITY
 from ftcgym.models.vsqp import RPM
 
-MAX_TRIM_ALPHA = math.radians(10.0)   # issue 5 acceptance: forward-flight trims with alpha in [0, 10] deg
+MAX_TRIM_ALPHA = math.radians(10.0)   # largest trim alpha, below the wing's C_Lmax at 10.7 deg
 MIN_TRIM_ALPHA = math.radians(-10.0)  # above ~22 m/s the wing-borne alpha may go below 0
 HOVER_SPEED = 0.5                     # m/s: below it the trim is the hover one (pitch level)
 PUSHER_OFF = 2.0                      # rad/s: a pusher trim below this is reported as stopped

@@ -13,11 +13,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..models.geometry import cross, rotation_matrix
 from ..models.constants import GRAVITY
+from ..models.geometry import cross, rotation_matrix
 from ..models.quadrotor import QuadrotorParams, rotor_wrench_matrix
 from .base import UP
-
 
 
 @dataclass
@@ -37,11 +36,11 @@ class ControllerGains:
 
 #: Per-vehicle departures from the defaults. The Bebop 2 gets a stiffer roll/pitch rate loop: after a
 #: propeller loss the opposite rotor, still at hover thrust, tips it at ~90 rad/s^2 about the diagonal no
-#: other rotor can act on. In the detector's ~60 ms a rate gain of 18/s slowed that rotor by only 13%,
-#: leaving a 5.4 rad/s tumble that the spin recovery stopped only at 85 deg of tilt (1.1 m of altitude
-#: lost). 60/s puts the loop's crossover at ~37 rad/s, phase margin ~30 deg with the Bebop 2's 33 ms
-#: motor lag (Sun et al.'s model); hover and square tracking are unchanged. Tuned on rotor-loss seeds
-#: 1001-1006 and `ftcgym bench --seed 1000` (18 -> 45 -> 60: altitude loss 1.1 -> 0.18 -> 0.13 m).
+#: other rotor can act on. In the detector's ~60 ms the default rate gain of 18/s slows that rotor too little
+#: and leaves a tumble that the spin recovery stops only near 85 deg of tilt. 60/s puts the loop's crossover
+#: at ~37 rad/s, phase margin ~30 deg with the Bebop 2's 33 ms motor lag (Sun et al.'s model); hover and
+#: square tracking are unchanged. Chosen on tuning flights; see docs/measurements.md, 'Tuning record:
+#: agents/quadrotor_control.py'.
 VEHICLE_GAINS = {"bebop2": {"rate": (60.0, 60.0, 8.0)}}
 
 
@@ -58,8 +57,10 @@ class NominalController:
         self.gains = gains or gains_for(params)
         self.dt = 1.0 / agent_hz
         g = self.gains
-        self._kp, self._kd, self._ki = (np.asarray(x, dtype=float) for x in (g.position, g.velocity, g.position_integral))
-        self._katt, self._krate, self._krate_i = (np.asarray(x, dtype=float) for x in (g.attitude, g.rate, g.rate_integral))
+        self._kp, self._kd, self._ki = (np.asarray(x, dtype=float)
+                                        for x in (g.position, g.velocity, g.position_integral))
+        self._katt, self._krate, self._krate_i = (np.asarray(x, dtype=float)
+                                                  for x in (g.attitude, g.rate, g.rate_integral))
         self._max_rate = np.asarray(g.max_rate, dtype=float)
         self._max_horizontal = GRAVITY * np.tan(np.deg2rad(g.max_tilt_deg))
         self._inertia = np.asarray(params.inertia, dtype=float)
@@ -120,10 +121,11 @@ class NominalController:
         self._gyro += self._gyro_alpha * (gyro - self._gyro)
         error = rates_cmd - self._gyro
         limit = self._alpha_integral_limit
-        self._rate_integral = np.minimum(np.maximum(self._rate_integral + self._krate_i * error * self.dt, -limit), limit)
+        integral = self._rate_integral + self._krate_i * error * self.dt
+        self._rate_integral = np.minimum(np.maximum(integral, -limit), limit)
         alpha = self._krate * error + self._rate_integral
-        I, w = self._inertia, self._gyro
-        return I * alpha + cross(w, I * w)
+        inertia, w = self._inertia, self._gyro
+        return inertia * alpha + cross(w, inertia * w)
 
     def mix(self, thrust: float, torque) -> np.ndarray:
         """Normalised rotor commands for a collective thrust (N) and body torques (N m).

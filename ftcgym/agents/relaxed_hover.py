@@ -70,7 +70,7 @@ def rotor_moment(params: QuadrotorParams, forces: np.ndarray) -> np.ndarray:
 
 def propeller_momentum(params: QuadrotorParams, omega: np.ndarray, loaded: np.ndarray) -> np.ndarray:
     """h = -I_p sum_i s_i omega_i z over the propellers still on (signed speeds; App. B's script sums
-    unsigned speeds, VEHICLES.md)."""
+    unsigned speeds; docs/vehicles.md, 'mueller2014')."""
     return np.array([0.0, 0.0, -params.propeller_inertia * float(np.dot(np.asarray(YAW_SIGNS) * loaded, omega))])
 
 

@@ -12,9 +12,9 @@ Per agent step:
    thrust from the vertical balance T R_33 = -F_z.
 2. Inner loop (`axis_lqr.ScheduledAxisLqr`): LQR on the linearised body-frame dynamics of (p, q, n_x, n_y) as
    Mueller & D'Andrea, plus the rotor forces' lag, gain-scheduled on the yaw rate while the spin builds
-   up. We tried the model inversion (NDI) of Sun et al.'s output first: it holds the equilibrium, but it
-   cancels the gyroscopic coupling that is the only way to hold the failed rotor's side up at low spin, and
-   lost 50-70 deg of axis after each switch (see the issue 4 report).
+   up. Not the model inversion (NDI) of Sun et al.'s output: it holds the equilibrium, but it cancels the
+   gyroscopic coupling that is the only way to hold the failed rotor's side up at low spin
+   (docs/measurements.md, 'Tuning record: agents/spin_recovery.py').
 3. Forces -> rotor speeds f = c_T omega^2 (App. B eq. 10) -> normalised commands; the failed rotor idles.
 
 Only observations are used (gyro, attitude, position, velocity, rotor_speed, reference_*) and the failed
@@ -27,10 +27,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..models.geometry import cross, rotation_matrix
-from ..models.sensors import GYRO_LIMIT
 from ..models.constants import GRAVITY
+from ..models.geometry import cross, rotation_matrix
 from ..models.quadrotor import QuadrotorParams
+from ..models.sensors import GYRO_LIMIT
 from .axis_lqr import ScheduledAxisLqr
 from .base import UP
 from .relaxed_hover import relaxed_hover_equilibrium
@@ -69,11 +69,11 @@ class SpinRecoveryGains:
     touchdown_margin: float = 0.15             # m above the resting height where a stop counts as touchdown
 
 
-#: Per-vehicle departures from the defaults, tuned on seeds 1000+. The Bebop 2 (inertia a third of
-#: Mueller's for similar rotor moments) tips fastest: it gets the idle balance, an LQR that leaves the
-#: opposite rotor alone while the spin builds up, and little axis weight before gyroscopic stiffness exists.
-#: With the stiffer nominal rate loop (`quadrotor_control.VEHICLE_GAINS`) it also boosts to 0.6 r_bar (tuning
-#: seeds of `ftcgym bench --seed 1000`: median recovery 1.13 s at 0.5, 0.87 s at 0.6, 0.88 s at 0.7).
+#: Per-vehicle departures from the defaults. The Bebop 2 (inertia a third of Mueller's for similar rotor
+#: moments) tips fastest: it gets the idle balance, an LQR that leaves the opposite rotor alone while the spin
+#: builds up, and little axis weight before gyroscopic stiffness exists. With the stiffer nominal rate loop
+#: (`quadrotor_control.VEHICLE_GAINS`) it also boosts to 0.6 r_bar. Chosen on tuning flights; see
+#: docs/measurements.md, 'Tuning record: agents/spin_recovery.py'.
 VEHICLE_GAINS = {"bebop2": {"balance_idle": True, "lqr_opposite_weight": 1000.0, "lqr_axis_floor": 0.01,
                             "arrest_rate": 1.0, "boost_until": 0.6}}
 

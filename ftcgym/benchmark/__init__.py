@@ -1,4 +1,4 @@
-"""The detection-to-recovery benchmark (DESIGN.md "Benchmark").
+"""The detection-to-recovery benchmark (docs/concepts.md, 'Benchmark metrics').
 
 - `scenarios`: the scenario catalogue (`Scenario`, `SCENARIOS`, `register`, `get_scenario`)
 - `runner`: flies episodes and scores them (`run_episode`, `run_benchmark`)

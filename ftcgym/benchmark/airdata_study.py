@@ -1,4 +1,4 @@
-"""Measurements of the airdata_ekf detectors (issue 6 parts 1-3): every criterion's alarm on the same flights,
+"""Measurements of the airdata_ekf detectors: every criterion's alarm on the same flights,
 the airspeed error after a sensor fault, and threshold proposals from fault-free residual statistics.
 
     ftcgym airdata-study --scenario NAME [--episodes N] [--seed S] [--policy P] [--env-kwargs JSON]

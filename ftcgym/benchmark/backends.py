@@ -21,10 +21,11 @@ import sys
 import threading
 import time
 import traceback
+from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING
 
 from tqdm import tqdm
 
@@ -40,7 +41,7 @@ class Job:
     """One episode to fly. `key` names it uniquely within a run: results and resumption go by it."""
 
     key: str
-    scenario: "Scenario"
+    scenario: Scenario
     policy: str
     seed: int
     env_overrides: dict | None = None

@@ -5,9 +5,9 @@
 Flies the square task (with and without 90 deg heading changes) in light Dryden turbulence and a
 (1, -1, 0) m/s mean wind, mass 0.5 -> 1 kg between 40 and 42 s, with the nominal controller, and
 prints each seed's alarm time. The alarm rule (a CUSUM of the IV increments) and the prefilter were
-tuned on env seeds 1000-1019 (recorded episodes replayed offline: the detector does not act on the flight);
-report on others (held-out: 100-109 here, or `ftcgym bench --seed 100`, whose episode seeds are hashed
-from the base seed and so differ from both).
+tuned on recorded episodes replayed offline (the detector does not act on the flight); report on seeds
+not used for tuning (those are listed in docs/measurements.md, 'Tuning record: fdd/iv_change.py').
+`ftcgym bench` hashes its episode seeds from the base seed, so they differ from the env seeds given here.
 """
 from __future__ import annotations
 
@@ -43,7 +43,7 @@ def fly(seed: int, heading_changes: bool, record: bool = False, **detector_kwarg
     obs, info = env.reset(seed=seed)
     policy = make_policy("nominal", env)
     policy.reset(obs, info)
-    trace, spent, steps = [], 0.0, 0
+    trace = []
     while True:
         obs, _, terminated, truncated, info = env.step(policy.act(obs, info))
         if record:

@@ -1,15 +1,21 @@
 """Benchmark metrics: per-episode numbers from a recorded trajectory, and their per-scenario summary.
 
-Pure numpy functions of arrays, testable without the simulator. Definitions are those of DESIGN.md
-("Benchmark"); the field lists below are its `results.json` contract.
+Pure numpy functions of arrays, testable without the simulator. Definitions are those of docs/concepts.md
+('Benchmark metrics'); the field lists below are its `results.json` contract.
 """
 from __future__ import annotations
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ftcgym.criteria import (AIRSPEED_TOLERANCE, ALTITUDE_TOLERANCE, ENVELOPE_PITCH, ENVELOPE_ROLL,  # noqa: F401
-                             RECOVERY_HOLD, THRUST_AXIS_TOLERANCE)
+from ftcgym.criteria import (  # noqa: F401
+    AIRSPEED_TOLERANCE,
+    ALTITUDE_TOLERANCE,
+    ENVELOPE_PITCH,
+    ENVELOPE_ROLL,
+    RECOVERY_HOLD,
+    THRUST_AXIS_TOLERANCE,
+)
 from ftcgym.fdd.metrics import false_alarms_per_hour, isolation_accuracy, missed_detection_rate
 
 EPISODE_FIELDS = (
@@ -17,7 +23,7 @@ EPISODE_FIELDS = (
     "detection_delay", "isolated_target", "isolation_correct", "false_alarm", "recovery_time",
     "recovered", "crashed", "altitude_loss", "position_rmse", "airspeed_error_rmse", "flight_time",
 )
-#: quad-plane mission fields (issue 5), appended to each episode row; null for the quadrotor
+#: quad-plane mission fields, appended to each episode row; null for the quadrotor
 QUADPLANE_FIELDS = ("mission_complete", "time_quad_mode", "time_transition", "time_forward_flight",
                     "cruise_airspeed_rmse", "max_attitude_deg", "upset_attitude_deg", "upset_altitude_loss")
 EPISODE_FIELDS = EPISODE_FIELDS + QUADPLANE_FIELDS
@@ -43,13 +49,15 @@ def thrust_axis_error(attitude: np.ndarray, reference: np.ndarray) -> np.ndarray
 
 
 def hover_recovered(altitude, altitude_reference, axis_error) -> np.ndarray:
-    """Per-sample rotor-loss recovery condition (DESIGN.md): altitude and thrust axis on target."""
+    """Per-sample rotor-loss recovery condition (docs/concepts.md, 'Benchmark metrics'): altitude and thrust axis
+    on target."""
     altitude_ok = np.abs(np.asarray(altitude) - np.asarray(altitude_reference)) <= ALTITUDE_TOLERANCE
     return altitude_ok & (np.asarray(axis_error) <= THRUST_AXIS_TOLERANCE)
 
 
 def recovery_time(time, recovered, onset: float, hold: float = RECOVERY_HOLD) -> float | None:
-    """Start of the first window after `onset` in which `recovered` holds for `hold` s (DESIGN.md).
+    """Start of the first window after `onset` in which `recovered` holds for `hold` s (docs/concepts.md,
+    'Benchmark metrics').
 
     A stretch of recovered samples lasts until the next unrecovered sample, or until the last
     sample if the episode ends recovered. None when no stretch lasts `hold` s.
@@ -79,7 +87,7 @@ def roll_pitch(attitude: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def airspeed_recovered(airspeed_used, airspeed, attitude) -> np.ndarray:
-    """Per-sample airspeed-fault recovery condition (DESIGN.md)."""
+    """Per-sample airspeed-fault recovery condition (docs/concepts.md, 'Benchmark metrics')."""
     roll, pitch = roll_pitch(attitude)
     close = np.abs(np.asarray(airspeed_used) - np.asarray(airspeed)) <= AIRSPEED_TOLERANCE
     return close & (np.abs(roll) <= ENVELOPE_ROLL) & (np.abs(pitch) <= ENVELOPE_PITCH)
@@ -103,7 +111,8 @@ def rms(values) -> float | None:
 #: what a detector must name to isolate a fault whose `target` is not its channel (a pitot blockage's target
 #: is its mode, "zero" or "stuck"; the detector names the sensor)
 ISOLATION_TARGETS = {"pitot_blockage": "pitot"}
-ISOLATION_TARGETS.update({kind: kind for kind in ("propeller_icing", "viscous_friction", "static_friction")})  # propulsion_bayes names the mode
+# propulsion_bayes names the mode
+ISOLATION_TARGETS.update({kind: kind for kind in ("propeller_icing", "viscous_friction", "static_friction")})
 ISOLATION_TARGETS.update({"gnss": "gnss", "pusher_rpm_sensor": "pusher_rpm"})   # airdata_ekf innovation detectors
 
 
@@ -202,7 +211,8 @@ def _isolation_accuracy(rows: list[dict]) -> float | None:
 
 
 def _succeeded(row: dict) -> bool:
-    """DESIGN.md: recovered after a fault; in a fault-free episode, ended without a crash."""
+    """Success (docs/concepts.md, 'Benchmark metrics'): recovered after a fault; in a fault-free episode,
+    ended without a crash."""
     if row["fault_onset"] is not None:
         return bool(row["recovered"])
     return not row["crashed"]

@@ -1,4 +1,4 @@
-"""Benchmark outputs (DESIGN.md "Benchmark"): results.json, episodes.csv, report.md, PNG plots, and
+"""Benchmark outputs (docs/concepts.md, "Benchmark metrics"): results.json, episodes.csv, report.md, PNG plots, and
 the summary table printed to stdout.
 """
 from __future__ import annotations
@@ -21,7 +21,8 @@ COLUMN_LABELS = {
     "recovery_latency_p95": "recovery p95 (s)", "success_rate": "success", "crash_rate": "crash",
 }
 DEFINITIONS = (
-    "Definitions (DESIGN.md): detection delay = alarm time - fault onset, over detected faults; "
+    "Definitions (docs/concepts.md, Benchmark metrics): detection delay = alarm time - fault onset, over "
+    "detected faults; "
     "missed = fraction of fault episodes whose alarm never came at or after onset; a false alarm is "
     "an alarm before onset or in a fault-free episode, FA/h counts them per hour of fault-free flight "
     "(before onset, or the whole episode); isolation = fraction of detected faults attributed to the "

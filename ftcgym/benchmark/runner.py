@@ -1,8 +1,9 @@
-"""Fly policies through scenarios, record each episode and score it (DESIGN.md "Benchmark").
+"""Fly policies through scenarios, record each episode and score it (docs/concepts.md, 'Benchmark metrics').
 
 `run_episode` flies one episode and returns its row of `EPISODE_FIELDS` plus a compact trajectory
 under "trajectory" (for plots, never written to CSV or JSON). `run_benchmark` runs many episodes,
-in worker processes or as Ray tasks when asked (`backends`), and returns the rows in a fixed order. Episode seeds depend only on
+in worker processes or as Ray tasks when asked (`backends`), and returns the rows in a fixed order. Episode seeds
+depend only on
 the base seed and the episode index, so every policy flies the same episodes and a seed reproduces
 the numbers.
 """
@@ -161,7 +162,7 @@ def score_episode(log: EpisodeLog) -> dict:
     if log.skew is not None:
         scores.update(_quadplane_scores(log, onset))
     elif onset is not None:
-        # The rotor-loss criterion (DESIGN.md) serves every quadrotor fault.
+        # The rotor-loss criterion (docs/concepts.md, 'Benchmark metrics') serves every quadrotor fault.
         axis_error = metrics.thrust_axis_error(log.attitude, log.thrust_axis_reference)
         recovered = metrics.hover_recovered(altitude, -log.reference_position[:, 2], axis_error)
         scores["recovery_time"] = metrics.recovery_time(log.time, recovered, onset)
@@ -171,7 +172,8 @@ def score_episode(log: EpisodeLog) -> dict:
 
 
 def _quadplane_scores(log: EpisodeLog, onset) -> dict:
-    """Mission fields; with the autopilot's airspeed, its error and the airspeed-fault recovery (DESIGN.md)."""
+    """Mission fields; with the autopilot's airspeed, its error and the airspeed-fault recovery
+    (docs/concepts.md, 'Benchmark metrics')."""
     altitude = -log.position[:, 2]
     roll, pitch = metrics.roll_pitch(log.attitude)
     scores = {**metrics.flight_phase_times(log.time, log.skew, altitude > 0.5),

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import importlib.util
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Callable
 
 from ftcgym.benchmark.random_wind import random_mean_wind_wrapper
 from ftcgym.registry import Registry
@@ -19,8 +19,9 @@ LIGHT_TURBULENCE = {"mean": [0.0, 0.0, 0.0], "turbulence": "light"}
 # Rotor-loss scenarios fly the fault-unaware controller, spin recovery on the detector's alarm, and the oracle
 # that switches at the true onset (an upper bound: the gap to ftc-spin is the price of detection).
 ROTOR_LOSS_POLICIES = ("nominal", "ftc-spin", "oracle-spin")
-# The shipped learned policy (issue 7) where it was trained (hover), when SB3 is installed to fly it; it was
-# not trained on manoeuvres and crashes there (10/10, `--seed 500`), so the maneuver scenario leaves it out.
+# The shipped learned policy (`learned-spin`) joins the hover scenarios' defaults when SB3 is installed to fly
+# it. The maneuver scenarios leave it out of their defaults; `--policy learned-spin` flies it there (its figures
+# on the square: docs/measurements.md).
 HOVER_ROTOR_LOSS_POLICIES = ROTOR_LOSS_POLICIES + (
     ("learned-spin",) if importlib.util.find_spec("stable_baselines3") else ())
 
@@ -170,7 +171,7 @@ register(Scenario(
     description="As quad-payload, turning the heading by 90 deg at each corner (004's second scenario).",
 ))
 
-# Quad-plane (issue 5): the autopilot flies the mission (take-off, transition, one 150 m circle at 18 m/s,
+# Quad-plane: the autopilot flies the mission (take-off, transition, one 150 m circle at 18 m/s,
 # back transition, landing) on the airspeed the policy feeds it.
 _QP_MISSION = {"wind": {"mean": [-3.0, 4.0, 0.0], "turbulence": "light"}, "max_episode_seconds": 240.0}
 AIRSPEED_POLICIES = ("pitot-only", "oracle-airspeed")
@@ -183,8 +184,8 @@ register(Scenario(
     description="Quad-plane mission, fault-free, 5 m/s mean wind and light turbulence.",
     default=True,
 ))
-# Pitot faults (issue 6): scored on the airdata_ekf pitot alarm (001 Sec. 6.1); airspeed-switch flies on it.
-# learned-airspeed (issue 7, task airspeed-source) beside them when SB3 is installed to fly it: trained on both
+# Pitot faults: scored on the airdata_ekf pitot alarm (001 Sec. 6.1); airspeed-switch flies on it.
+# learned-airspeed (task airspeed-source) beside them when SB3 is installed to fly it: trained on both
 # pitot fault kinds; +2 episodes (~30 s of one core) in `ftcgym bench`'s defaults.
 PITOT_FAULT_POLICIES = ("pitot-only", "airspeed-switch", "oracle-airspeed") + (
     ("learned-airspeed",) if importlib.util.find_spec("stable_baselines3") else ())
@@ -208,7 +209,7 @@ register(Scenario(
     description="Quad-plane mission; from 45 s the pitot reading drifts down at 2.5 m/s^2 (water blockage, "
                 "001 Sec. 7.2.2).",
 ))
-# EKF fault tolerance (issue 6 part 3, 001 Sec. 7.3): a sensor the EKF uses reads zero in forward flight; scored on
+# EKF fault tolerance (001 Sec. 7.3): a sensor the EKF uses reads zero in forward flight; scored on
 # the airdata_ekf innovation detectors (isolated "gnss" / "pusher_rpm"); airspeed-switch must not switch on them.
 SENSOR_FAULT_POLICIES = ("airspeed-switch", "oracle-airspeed")
 for _name, _kind, _sensor, _section in (("qp-gnss-fault", "gnss", "GNSS velocity", "7.3.1"),
@@ -236,14 +237,14 @@ register(Scenario(
                 "turbulence; counts false alarms of the pitot and innovation detectors.",
     wrappers=(random_mean_wind_wrapper,),
 ))
-# Propulsion faults (issue 6, 003 Sec. IV-V), scored on propulsion_bayes: 8 laps of cruise on the pitot, truncated at
+# Propulsion faults (003 Sec. IV-V), scored on propulsion_bayes: 8 laps of cruise on the pitot, truncated at
 # 300 s. The detector calibrates on early cruise (with its own airspeed step), detects from ~95 s and asks for a
 # +4 m/s step to isolate; each fault rises by 10% over 50 s from 100 s (003 Sec. IV-A, Fig. 6).
 # Sensors: 003 Sec. IV-B's measurement model for all three of the detector's inputs (additive Gaussian noise: omega
 # 5e-1, V_a 7e-4, I_e 1e-5 covariance; the first and last are every quad-plane's defaults). The pitot of the 001
 # scenarios (0.3 m/s noise, 0.05 s lag) puts ~6e-4 N m of noise on each 0.5 s sample of Q_a*(omega, V_a), as much
-# as a 10% viscous fault: isolation then is a coin toss between the friction modes (held out, `--seed 300`,
-# before this: icing 10/10, static 8/10, viscous 7/10; pass `--env-kwargs '{"sensors": {}}'` to fly it).
+# as a 10% viscous fault: isolation then is a coin toss between the friction modes (docs/measurements.md,
+# 'Tuning record: fdd/propulsion_bayes.py'; pass `--env-kwargs '{"sensors": {}}'` to fly it).
 PROPULSION_003_SENSORS = {"pitot_noise": math.sqrt(7e-4), "pitot_time_constant": 0.0}
 _QP_PROPULSION = {**_QP_MISSION, "task": {"name": "mission", "laps": 8}, "max_episode_seconds": 300.0,
                   "sensors": PROPULSION_003_SENSORS}

@@ -79,7 +79,7 @@ class SweepConfig:
     def to_json(self) -> dict:
         return json.loads(json.dumps(dataclasses.asdict(self)))  # tuples as lists, as it reads back
 
-    def select(self, set_names=None, episodes: int | None = None, env_kwargs: dict | None = None) -> "SweepConfig":
+    def select(self, set_names=None, episodes: int | None = None, env_kwargs: dict | None = None) -> SweepConfig:
         """A reduced or adjusted copy: only the named sets, `episodes` per scenario, more env kwargs."""
         sets = self.parameter_sets
         if set_names:
@@ -318,7 +318,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--workers", type=_positive_int, default=None, metavar="W",
                         help="worker processes or local Ray CPUs (default: one per CPU)")
     parser.add_argument("--sets", nargs="+", metavar="NAME", help="run only these parameter sets")
-    parser.add_argument("--episodes", type=_positive_int, metavar="N", help="episodes per scenario (default: the config's)")
+    parser.add_argument("--episodes", type=_positive_int, metavar="N",
+                        help="episodes per scenario (default: the config's)")
     parser.add_argument("--env-kwargs", type=json.loads, default=None, metavar="JSON",
                         help="JSON object merged into every scenario's gym.make kwargs")
     parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=True,
@@ -348,7 +349,7 @@ def main(args, argv: list[str]) -> int:
     except ValueError as error:
         raise SystemExit(f"ftcgym sweep: {error}") from None
     except EpisodesFailed as error:
-        raise SystemExit(f"ftcgym sweep: {error}\nFinished episodes are kept in {out}; rerun with --resume.")
+        raise SystemExit(f"ftcgym sweep: {error}\nFinished episodes are kept in {out}; rerun with --resume.") from None
     wall = time.perf_counter() - started
     journal = EpisodeJournal(out)
     run = {"command": shlex.join(["ftcgym", *argv]), "backend": args.backend, "workers": args.workers,

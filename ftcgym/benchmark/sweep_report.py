@@ -19,7 +19,8 @@ def summarize_sets(rows: list[dict], set_names) -> list[dict]:
     """Per parameter set: flights, faults detected and missed, flights with a false alarm, delay quartiles (ms).
 
     A missed detection is a fault flight without an alarm at or after onset; a false alarm, an alarm before
-    onset or in a fault-free flight (DESIGN.md), so a flight that alarmed early counts as both.
+    onset or in a fault-free flight (docs/concepts.md, 'Benchmark metrics'), so a flight that alarmed early
+    counts as both.
     """
     return [_summarize_set(name, [row for row in rows if row["parameter_set"] == name]) for name in set_names]
 
@@ -84,7 +85,8 @@ def plot_detections(path: Path, summary: list[dict], title: str) -> Path:
     x = np.arange(len(summary))
     figure = Figure(figsize=(max(6.0, 0.45 * len(summary) + 2.0), 4.0), layout="constrained")
     axes = figure.add_subplot()
-    for offset, key, label in ((-0.2, "missed", "missed detections"), (0.2, "false_alarms", "flights with a false alarm")):
+    bars = ((-0.2, "missed", "missed detections"), (0.2, "false_alarms", "flights with a false alarm"))
+    for offset, key, label in bars:
         bars = axes.bar(x + offset, [row[key] for row in summary], 0.4, label=label)
         axes.bar_label(bars, fontsize=7)  # a zero is a result too: label it, as an empty axis says nothing
     axes.set_xticks(x, [row["parameter_set"] for row in summary], rotation=60, ha="right")

@@ -7,8 +7,8 @@ import math
 import gymnasium as gym
 import numpy as np
 
-from ..models.tasks import make_task
 from ..models.constants import GRAVITY
+from ..models.tasks import make_task
 from ..models.wind import DrydenWind
 from .world import PyBulletWorld
 

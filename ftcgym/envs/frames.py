@@ -9,8 +9,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..models.geometry import rotation_matrix
-
 T_FLIP = np.array([1.0, -1.0, -1.0])  # diag(T): PyBullet <-> NED / FRD for vectors
 
 

@@ -29,13 +29,13 @@ import numpy as np
 from gymnasium import spaces
 
 from ..models.faults import QUADPLANE_KINDS, FaultSchedule, parse_faults, resolve
-from .flight_env import FlightEnv, check_action
 from ..models.geometry import quat_from_euler
 from ..models.pusher import PusherMotor
 from ..models.quadplane_aero import aero_wrench
 from ..models.rotors import RotorSet
 from ..models.sensors import ACCEL_LIMIT, GYRO_LIMIT, QuadPlaneSensorConfig, QuadPlaneSensors
 from ..models.vsqp import make_vsqp_params
+from .flight_env import FlightEnv, check_action
 
 SENSOR_KEYS = ("gyro", "accel", "attitude", "position", "velocity", "pitot_airspeed", "gnss_velocity", "skew",
                "hover_rotor_speed", "pusher_speed", "pusher_current")

@@ -25,11 +25,11 @@ import numpy as np
 from gymnasium import spaces
 
 from ..models.faults import FaultSchedule, parse_faults, resolve
-from .flight_env import FlightEnv, check_action
 from ..models.geometry import quat_from_euler
+from ..models.quadrotor import YAW_SIGNS, make_params, rotational_drag_moment
 from ..models.rotors import RotorSet
 from ..models.sensors import ACCEL_LIMIT, GYRO_LIMIT, QuadrotorSensors, SensorConfig
-from ..models.quadrotor import YAW_SIGNS, make_params, rotational_drag_moment
+from .flight_env import FlightEnv, check_action
 
 SENSOR_KEYS = ("gyro", "accel", "attitude", "position", "velocity", "rotor_speed")
 BOUNDS = 100.0                    # m, half-width and ceiling of the flight box
@@ -156,7 +156,7 @@ class QuadrotorEnv(FlightEnv):
         return float(1.0 - 0.5 * min(error, 4.0) - 0.5 * (1.0 - self._R[2, 2]) - 0.05 * float(command @ command) / 4)
 
     def _info(self) -> dict:
-        """A fresh info dict (DESIGN.md contract)."""
+        """A fresh info dict (docs/concepts.md, 'The info contract')."""
         rotors = self.rotors
         airspeed_vec = self._vel - self._wind
         return {

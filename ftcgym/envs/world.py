@@ -14,7 +14,8 @@ import sys
 import numpy as np
 
 from ..models.constants import GRAVITY
-from .frames import quat_from_ned, quat_to_ned, rotation_matrix, vec_to_ned
+from ..models.geometry import rotation_matrix
+from .frames import quat_from_ned, quat_to_ned, vec_to_ned
 
 _FLIP_BOTH = np.outer([1.0, -1.0, -1.0], [1.0, -1.0, -1.0])  # R_ned_frd = T R_pb T, elementwise
 

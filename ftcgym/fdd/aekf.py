@@ -1,6 +1,6 @@
 """`AugmentedEkfDetector` ("aekf"): actuator loss-of-effectiveness estimation with an augmented EKF.
 
-Lu, van Kampen, Yu, *Actuator Fault Detection and Diagnosis for Quadrotors* (seeds/002): the rigid-body
+Lu, van Kampen, Yu, *Actuator Fault Detection and Diagnosis for Quadrotors* (002): the rigid-body
 model (eq. 19-27) is augmented with the loss of effectiveness l_i of each rotor as a random-walk state
 (eq. 43-44) and estimated by an EKF (eq. 6-18, Joseph-form covariance eq. 18) from position, velocity and
 attitude measurements (eq. 28-36); a threshold on the accumulated innovation raises the alarm (eq. 41-42).
@@ -9,8 +9,9 @@ State x = [p (3, NED m), v (3, NED m/s), eta = (phi, theta, psi) (3, rad), omega
 rad/s), b_g (3, gyro bias rad/s), l (4, LOE of r1..r4), d (2, horizontal NED acceleration, m/s^2)].
 
 Where ftcgym departs from or adapts the paper (also noted at the code):
-- Frames: NED / FRD (DESIGN.md), so eq. (24) reads m dv_z/dt = -U cos(phi) cos(theta) + m g; the full ZYX
-  rotation R(eta) replaces the expanded products of eq. (22)-(24).
+- Frames: NED / FRD (docs/concepts.md, 'Frames and units'), so eq. (24) reads
+  m dv_z/dt = -U cos(phi) cos(theta) + m g; the full ZYX rotation R(eta) replaces the expanded products of
+  eq. (22)-(24).
 - Attitude as ZYX Euler angles, as 002: eq. (34)-(36) stay linear, so H is a selection matrix and the
   Joseph update eq. (18) is exact. A quadrotor the env has not declared crashed is within 60 deg of level,
   far from the pitch singularity; the yaw innovation and state are wrapped to [-pi, pi). (A quaternion
@@ -48,9 +49,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..models.constants import GRAVITY
-from ..settings import updated
 from ..models.geometry import euler_from_quat, rotation_from_euler, skew_matrix
 from ..models.quadrotor import YAW_SIGNS, rotor_wrench_matrix
+from ..settings import updated
 from . import kalman
 from .base import AlarmLatch
 from .wrapper import DetectorWrapper
@@ -77,7 +78,7 @@ class QuadrotorModel:
     rotational_drag: tuple = (0.0, 0.0, 0.0)  # N m s, linear
 
     @classmethod
-    def from_params(cls, params) -> "QuadrotorModel":
+    def from_params(cls, params) -> QuadrotorModel:
         """Read a `QuadrotorParams`-like object by attribute name (no simulator import)."""
         return cls(
             mass=float(params.mass), inertia=tuple(map(float, params.inertia)),
@@ -111,7 +112,8 @@ class AugmentedEkfDetector:
     dt:                  the update interval (s) the model is discretised at: one `update` per dt
     settings:            `AekfSettings` (each field also a keyword)
 
-    Defaults tuned on seeds 1-6 of the env's default sensors (tests/test_aekf.py reports other seeds).
+    Defaults chosen on tuning flights with the env's default sensors; see docs/measurements.md,
+    'Tuning record: fdd/aekf.py'.
     """
 
     name = "aekf"
@@ -155,7 +157,7 @@ class AugmentedEkfDetector:
         self.reset()
 
     @classmethod
-    def from_params(cls, params, dt: float, **kwargs) -> "AugmentedEkfDetector":
+    def from_params(cls, params, dt: float, **kwargs) -> AugmentedEkfDetector:
         """A detector for a `QuadrotorParams`-like object (attributes read by name)."""
         return cls(QuadrotorModel.from_params(params), dt, **kwargs)
 

@@ -1,7 +1,7 @@
 """Synthetic air data: the airspeed and wind EKF of 001 (Larocque 2023) Sec. 3-5 and App. B.
 
 Larocque, "Synthetic Air Data System for Pitot Tube Fault Detection on Hybrid Vehicle", MSc thesis,
-TU Delft 2023 (seed 001). Pipeline per sample:
+TU Delft 2023 (001). Pipeline per sample:
 
 1. Prefilter (Sec. 5): every measurement AND every input through the same 2nd-order 5 Hz Butterworth
    low-pass (`butterworth_prefilter`: scipy.signal.butter, bilinear transform with the cutoff prewarped, at
@@ -29,9 +29,9 @@ TU Delft 2023 (seed 001). Pipeline per sample:
    in the first 20 s is flagged only at the end of the window).
    Departure: by default (`pitot_reference="forward"`) the residual compares the pitot with the EKF's air
    velocity along the pitot, max(u, 0), not with |V|: the simulated pitot reads forward flow only
-   (`envs/sensors.py`), so in hover with the tail or side to a 5 m/s wind it reads ~0 while |V| ~ 5-6 m/s,
-   and r = pitot - |V| crossed the 5.5 m/s norm threshold on a fault-free mission (seed 1000, hover before
-   landing: false alarm at 98.7 s). In forward flight u ~ |V| and the two agree. `"airspeed"` gives 001's r.
+   (`models/sensors.py`), so in hover with the tail or side to a 5 m/s wind it reads ~0 while |V| ~ 5-6 m/s,
+   and r = pitot - |V| can cross the 5.5 m/s norm threshold in a fault-free hover (docs/measurements.md,
+   'Tuning record: fdd/airdata_ekf.py'). In forward flight u ~ |V| and the two agree. `"airspeed"` gives 001's r.
 5. Beside Table 2, a one-sided CUSUM on the drop of the same filtered residual (`ResidualCusum`, the
    statistical test 001 Sec. 7.2.2 and 8.1 recommend for incipient faults), armed with it; `criterion`
    ("table2", "cusum", "either") picks which drives the pitot alarm, and both alarm times are published.
@@ -47,13 +47,13 @@ TU Delft 2023 (seed 001). Pipeline per sample:
 The force model (`ComponentForceModel`) is 001's (eq. 6-30: fuselage, hover rotors, wing, pusher; control
 surfaces and tail neglected as 001 Sec. 4 does): the simulator's own generalised forms
 (`ftcgym.models.quadplane_aero`, `ftcgym.models.pusher`) evaluated with its coefficients taken from the vehicle
-parameter set passed in and then given an error (a detector must not know the plant exactly): by default every aerodynamic and propulsive
-coefficient is multiplied by 1 + `coefficient_error` (10%); with `error_seed` each one gets a seeded
-random sign, 1 +- error.
+parameter set passed in and then given an error (a detector must not know the plant exactly): by default every
+aerodynamic and propulsive coefficient is multiplied by 1 + `coefficient_error` (10%); with `error_seed` each
+one gets a seeded random sign, 1 +- error.
 
 Errata and departures (001 as printed):
-- eq. (39) rises from 1 to 100 between 60 and 70 deg; the text (and seeds/README.md) says the multiplier
-  falls from 100 (<= 60 deg) to 1 (>= 70 deg): K_az = 10**(2 (70 - Lambda) / 10) between.
+- eq. (39) rises from 1 to 100 between 60 and 70 deg; the text (and docs/references.md, 'Known errata') says
+  the multiplier falls from 100 (<= 60 deg) to 1 (>= 70 deg): K_az = 10**(2 (70 - Lambda) / 10) between.
 - eq. (52) prints x_pred = f(x, u) dt; the Euler step is x_pred = x + f(x, u) dt. eq. (53) uses the
   continuous Jacobian F; the discrete transition is Phi = I + F dt (001's onboard code multiplies P by
   F alone, which resets the wind covariance to Q every step).
@@ -69,15 +69,23 @@ import numpy as np
 from scipy import signal
 
 from ..models.constants import GRAVITY
-from ..settings import updated
 from ..models.geometry import rotation_matrix, skew_matrix
 from ..models.pusher import pusher_thrust
 from ..models.quadplane_aero import fuselage_force, wing_flow
+from ..settings import updated
 from . import kalman
 from .base import Biquad, model_with_error
-from .pitot_detection import (CUSUM_DEFAULT, TABLE_2_DERIVATIVE, TABLE_2_NORM, ConfirmationTest, CusumTest,
-                              PitotConfirmation, ThresholdTest,
-                              PitotResidualDetector, ResidualCusum)
+from .pitot_detection import (
+    CUSUM_DEFAULT,
+    TABLE_2_DERIVATIVE,
+    TABLE_2_NORM,
+    ConfirmationTest,
+    CusumTest,
+    PitotConfirmation,
+    PitotResidualDetector,
+    ResidualCusum,
+    ThresholdTest,
+)
 from .propulsion_bayes import PropulsionModel
 from .rpm_current import RPM_CURRENT_CHECK, CurrentCheck, RpmCurrentCheck, speed_from_current
 
@@ -111,7 +119,7 @@ class InnovationTest:
     speed_from_current: float | None = None    # (m/s^2)^2: keep a_x with the current's speed at this variance
 
     @classmethod
-    def of(cls, spec) -> "InnovationTest":
+    def of(cls, spec) -> InnovationTest:
         """An InnovationTest from itself or from a dict of its fields (JSON); the tests as lists."""
         if isinstance(spec, cls):
             return spec
@@ -128,21 +136,13 @@ SPEED_SCALE_SECONDS, SPEED_SCALE_MIN_SPEED, SPEED_SCALE_MIN_SKEW = 10.0, 300.0, 
 #: eq. 13-14) and the skew sensor; 001 implements a_x only, as here. Departure from Table 2's 1.25 m/s^2 for 2 s:
 #: our EKF absorbs a zeroed RPM reading into u and the wind within ~0.5 s (Table 1's R_ax = 5e-5 trusts the
 #: model), so the raw innovation shows the fault as a burst of +0.5..+1.5 m/s^2 over the first 0.1-0.5 s and
-#: then mostly as smaller bursts (tuning seed 1000, 10 flights), which 1.25 for 2 s never sees. A reading that
-#: fails low makes the model miss thrust, so the innovation (measured - model) goes positive: the criterion is
-#: one-sided ("sign": +1), on the innovation low-passed at 1 Hz (to pass the burst), held 0.2 s, at 0.41 m/s^2:
-#: the run-rate threshold of `false_alarm.run_rate_threshold` for 0.1% false detection per flight hour (001 Sec.
-#: 6.1's budget) on 18 fault-free qp-no-fault-long flights (0.97 armed hours; base seeds 1000, 10 flights with
-#: mean wind >= 7.5 m/s, and 1001, 8 flights; the largest level held 0.2 s there: 0.22 m/s^2). The cutoff and
-#: hold separate the fault's burst best from those flights' largest level (cutoffs 0.5-5 Hz, holds 2-10
-#: samples: 8 of the 10 tuning bursts reach 1.7-2.6 times it). A first choice, 0.27 m/s^2 held 0.4 s (the
-#: run-rate threshold for that hold), raised a false alarm at 33.9 s in the 18th of the held-out flights of
-#: `--seed 300`; the run-rate extrapolation from one hour had been too optimistic, so the hold and threshold
-#: were re-chosen as above, on the tuning flights only, and the held-out measurements moved to `--seed 301`.
-#: On the 10 tuning flights (offline replay of `ftcgym airdata-study --scenario qp-rpm-sensor-fault --seed
-#: 1000`, 75 s) the delays have a median of 0.40 s and a maximum of 4.42 s (weak bursts: there the a_x model
-#: error shows again only seconds later); the old 0.1 Hz / 1 s / 0.082 criterion took 2.0-14.8 s, median 2.9 s.
-#: The derivative row is Table 2's.
+#: then mostly as smaller bursts, which 1.25 for 2 s never sees. A reading that fails low makes the model miss
+#: thrust, so the innovation (measured - model) goes positive: the criterion is one-sided ("sign": +1), on the
+#: innovation low-passed at 1 Hz (to pass the burst), held 0.2 s, at 0.41 m/s^2: the run-rate threshold of
+#: `false_alarm.run_rate_threshold` for 0.1% false detection per flight hour (001 Sec. 6.1's budget) on
+#: fault-free flights. The cutoff and hold are those that best separate the fault's burst from the fault-free
+#: level. The derivative row is Table 2's. Chosen on tuning flights; see docs/measurements.md,
+#: 'Tuning record: fdd/airdata_ekf.py'.
 INNOVATION_DETECTORS = {
     "gnss": InnovationTest(channels=(0, 1, 2), norm=ThresholdTest(2.5, 0.08, 5.0),
                            derivative=ThresholdTest(30.0, 0.08, 5.0), rollback=0.16),
@@ -155,18 +155,14 @@ INNOVATION_DETECTORS = {
 #: for the weak bursts. Our EKF absorbs the zeroed RPM by lowering its airspeed 3-6 m/s within 0.5 s (001 Fig.
 #: 11: 2 m/s), so the pitot residual rises; the criterion fires when the a_x innovation (the norm row's 1 Hz
 #: low-pass) reached 0.15 m/s^2 within the last 2 s and the residual (Table 2's 5 Hz low-pass) has stayed >= 3 m/s
-#: for 0.2 s. Chosen offline on recordings of the tuning flights above (the 18 fault-free flights, 1.16 h armed,
-#: and the 10 fault flights of seed 1000, flown with the earlier a_x criterion): fault-free, the largest residual
-#: held 0.2 s while the level gate was open is 1.82 m/s (3 m/s is 1.65 times it; the residual alone, ungated,
-#: reaches 3.7 m/s); on the fault flights the criterion fires 0.34-0.72 s after onset, including the two weak
-#: bursts (0.50 and 0.72 s) that the norm row sees only after 4.1-4.3 s. The gate was first 0.2 m/s^2 (fault-free
-#: max 1.51 m/s); a held-out flight (`--seed 305`) whose burst peaked at 0.19 m/s^2 then took 5 s, so the gate
-#: went to 0.15, about 0.6 times the weakest tuning burst (0.24 m/s^2; they peak at 0.24-0.64), and seed 305
-#: counts as tuning data since. Held-out figures: README, "Fault detectors" (`ftcgym airdata-study`).
+#: for 0.2 s. A blocked pitot can only lower the residual, so a residual rising right after an a_x burst blames
+#: the RPM. The residual level (3 m/s) stands above the largest that fault-free flights hold while the level gate
+#: is open; the level gate (0.15 m/s^2) is about 0.6 times the weakest fault burst. Chosen offline on recorded
+#: tuning flights; see docs/measurements.md, 'Tuning record: fdd/airdata_ekf.py'.
 #: "current_check" ((allowance, threshold A, hold s) of `rpm_current.RpmCurrentCheck`; needs the reading
 #: "pusher_current"): the sensor's criteria alarm only while the check holds, i.e. while the pusher's current
-#: exceeds what its read speed can draw. Without it the two held-out a_x false alarms of 30.7 fault-free hours
-#: (README) isolated the RPM sensor on EKF errors; a criterion that fires while the check does not hold is
+#: exceeds what its read speed can draw. The a_x test also fires on large EKF errors of its own, and the check
+#: keeps those from isolating the RPM sensor; a criterion that fires while the check does not hold is
 #: published as unconfirmed (`innovation_unconfirmed`) and the EKF keeps the measurement.
 #: "rollback" (s, default 0): on the alarm the EKF re-runs from its state that long ago without the sensor
 #: (`AirdataEkfDetector._roll_back`, a departure from 001). GNSS: 0.16 s = the criteria's 2 samples (0.08 s)
@@ -176,28 +172,24 @@ INNOVATION_DETECTORS = {
 #: isolated, the a_x row stays in use with the pusher speed that the measured current draws at the EKF's airspeed
 #: (`rpm_current.speed_from_current`, 003 eq. 1-4 in steady state), its variance raised to this. A departure from
 #: 001 Sec. 6.2, which drops the row: without a_x the airspeed along x is tied to the GNSS only through the wing's
-#: lift model, and the EKF airspeed ran 1.5-3.5 m/s low for the rest of the flight. Chosen on the tuning flights
-#: (`qp-rpm-sensor-fault`, base seed 1000, 10 flights, 75 s; largest error after detection / median RMSE):
-#: without the row 5.08 / 1.74 m/s; with it at 1e-4, 1e-3, 3e-3, 1e-2: 2.08 / 0.52, 2.39 / 0.54, 2.80 / 0.73,
-#: 3.63 / 1.12 (uncalibrated speed). With seeded signs on the model error (`error_seed` 1) the uncalibrated speed
-#: erred by ~8% and 1e-3 gave 4.21 / 1.92, hence the calibration in `_pusher_speed`: with it 1e-3 gives
-#: 2.32 / 0.54 (default error), 2.01 / 0.58 (`error_seed` 1), 4.01 / 1.03 (`error_seed` 2, whose EKF also raised
-#: pitot or GNSS false alarms in 5 of the 10 flights before the fault).
+#: lift model, and the EKF airspeed ran 1.5-3.5 m/s low for the rest of the flight. The variance 1e-3 and the
+#: speed's calibration (`_pusher_speed`) were chosen on tuning flights; see docs/measurements.md,
+#: 'Tuning record: fdd/airdata_ekf.py'.
 #: Sec. 6.2: "increases its covariance": the variance (units^2) a measurement gets once its detector alarms
 FAULT_COVARIANCE = 1e6
 PITOT_CRITERIA = ("table2", "cusum", "either")
 #: `vertical_wind`: "state" estimates mu_z (001 eq. 5, Table 1); "fixed" holds it at 0, an option (a departure
-#: from 001) for models whose error the EKF would explain as a vertical wind. With seeded-sign errors whose
-#: hover thrust coefficient is 10% low (`error_seed` 2 and 3) the EKF meets the thrust deficit in the first
-#: hover, under the 20 s wind boost, with a vertical wind: mu_z reaches -7 m/s, w +9 m/s in cruise, the
-#: airspeed reads 3.5-4 m/s low and Table 2 alarms (replays of tuning missions, base seed 1000). Held at 0 the
-#: error left is 0.1-0.3 m/s; with the default error (+10% on all) the vertical wind stays near 0 anyway.
+#: from 001) for models whose error the EKF would explain as a vertical wind: with a hover thrust coefficient
+#: 10% low (`error_seed` 2 and 3) the EKF meets the thrust deficit in the first hover, under the 20 s wind
+#: boost, with a vertical wind, and then reads the airspeed several m/s low. With the default error (+10% on
+#: all) the vertical wind stays near 0 anyway. Measurements: docs/measurements.md, 'Tuning record:
+#: fdd/airdata_ekf.py'.
 VERTICAL_WIND = ("state", "fixed")
 
 
 def az_covariance_gain(skew: float) -> float:
     """K_az of 001 eq. (39), corrected: 100 at skew <= 60 deg, 1 at >= 70 deg, 10**(2 (70 - skew_deg) / 10)
-    between (eq. 39 as printed rises from 1 to 100; the text says it falls, seeds/README.md erratum)."""
+    between (eq. 39 as printed rises from 1 to 100; the text says it falls; erratum, docs/references.md)."""
     deg = math.degrees(skew)
     if deg <= 60.0:
         return 100.0
@@ -278,9 +270,10 @@ class TakeoffGate:
     """001 Sec. 5.3 starts the EKF once airborne. `gate(z)` (position down, m, one reading per call) is True
     once the height averaged over the last `window` s of readings stands `height` m above its average over
     the first `window` s (the ground). Both are averages because the quad-plane's navigation position carries
-    0.3 m of white noise (sampled at 50 Hz): a single reading against the first one, the gate before, opened
-    before 0.3 s in 24 of 371 fault-free missions, some on the ground. Over 0.2 s (10 position samples) the
-    difference of the two averages has a noise of ~0.13 m, 1/7 of the 1 m height; the average lags ~0.1 s."""
+    0.3 m of white noise (sampled at 50 Hz): a single reading against the first one opens the gate on that
+    noise, sometimes on the ground (docs/measurements.md, 'Tuning record: fdd/airdata_ekf.py'). Over 0.2 s
+    (10 position samples) the difference of the two averages has a noise of ~0.13 m, 1/7 of the 1 m height;
+    the average lags ~0.1 s."""
 
     def __init__(self, height: float, window: float, sample_hz: float):
         if not (height > 0 and window > 0):
@@ -358,7 +351,8 @@ class AirdataEkfDetector:
 
     def __init__(self, params, sample_hz: float, settings: AirdataEkfSettings | None = None, **overrides):
         s = self.settings = updated(settings or AirdataEkfSettings(), overrides, "airdata_ekf")
-        ekf_hz, innovation_detectors = s.ekf_hz, {k: InnovationTest.of(v) for k, v in (s.innovation_detectors or {}).items()}
+        ekf_hz = s.ekf_hz
+        innovation_detectors = {k: InnovationTest.of(v) for k, v in (s.innovation_detectors or {}).items()}
         if not (math.isfinite(sample_hz) and sample_hz > 0 and 0 < ekf_hz <= sample_hz):
             raise ValueError(f"sample_hz {sample_hz!r} and ekf_hz {ekf_hz!r}: need 0 < ekf_hz <= sample_hz")
         self.model = ComponentForceModel(params, s.coefficient_error, s.error_seed)
@@ -538,7 +532,7 @@ class AirdataEkfDetector:
         def h(x):                                            # eq. (3) and (31)-(33)
             return np.concatenate([Rot @ x[:3] + x[3:], model.specific_force(x[:3], omega_p, omega_h, skew)])
 
-        def H(x):                                            # eq. (50): analytic for GNSS, central differences for the model
+        def H(x):                                   # eq. (50): analytic for GNSS, central differences for the model
             G = np.zeros((6, 6))
             G[:3, :3], G[:3, 3:] = Rot, np.eye(3)
             for j in range(3):
@@ -558,7 +552,7 @@ class AirdataEkfDetector:
         there are that many samples) in forward flight with the pusher driven; after, it scales the model's
         speed. It takes out the propulsion model's own error (`coefficient_error` on k_e and C_Q), which
         alone biased the speed by up to 8%. Not in the transition: spinning up against the ESC's current
-        limit the ratio is ~0.86, in cruise ~1.0 (qp-mission, seed 3). The ratio is part of the state the
+        limit the ratio is ~0.86, in cruise ~1.0. The ratio is part of the state the
         roll-back restores, so the faulty samples before the alarm do not enter it."""
         isolated = self.innovation_alarms.get("pusher_rpm") is not None
         if not isolated and (skew < SPEED_SCALE_MIN_SKEW or reading <= SPEED_SCALE_MIN_SPEED):

@@ -1,7 +1,7 @@
 """Loss-of-effectiveness detection with a Kalman estimator and a hypothesis test (000, Sec. IV).
 
 Strack van Schijndel, Sun, de Visser, "Fast Loss of Effectiveness Detection on a Quadrotor Using Onboard
-Sensors and a Kalman Estimation Approach", ICUAS 2023 (seed 000).
+Sensors and a Kalman Estimation Approach", ICUAS 2023 (000).
 
 Pipeline per sample (000 Fig. 3):
 1. Second-order low-pass H(s) = wn^2 / (s^2 + 2 zeta wn s + wn^2), wn = 50 rad/s, zeta = 0.55 (Sec. IV-A),
@@ -37,7 +37,8 @@ TABLE_II = {"G": (100e-6, 100e-6, 5e-6), "Q": 0.1, "R": 1.0, "k_threshold": 0.25
 #: combine; we read the random walk's variance per sample as Q dT. Taken literally as 0.1 per sample at 500 Hz,
 #: the variance along the direction eq. (12) cannot observe (3 measurements, 4 states) grows by 50 per second,
 #: so P_fail cannot pass 0.9 until the rotor speeds have diverged (~160 ms in our simulator, beyond 000's
-#: reported delays). Q dT gave 47-60 ms on tuning seeds 1000-1007 (see the issue's closing note).
+#: reported delays). With Q dT the delays fall within 000's reported range on tuning flights; see
+#: docs/measurements.md, 'Tuning record: fdd/loe_kalman.py'.
 Q_PER_SAMPLE = TABLE_II["Q"] * TABLE_II["step_size"]
 VARIANCE_CEILING = 1e6  # published k_var is clipped here (the unobservable direction's variance grows without bound)
 
@@ -52,7 +53,7 @@ def failure_probability(k_hat, variance, k_threshold: float) -> np.ndarray:
     """(P_fail)_i = P(k_i < k_thres) = 0.5 (1 + erf((k_thres - k_hat_i) / (sigma_i sqrt(2)))), sigma_i = sqrt(P_ii).
 
     000 eq. (15) as printed computes P(k_i > k_thres) and divides by the variance instead of the standard
-    deviation (erratum, seeds/README.md); this is the intended value, the normal CDF at k_thres.
+    deviation (erratum, docs/references.md); this is the intended value, the normal CDF at k_thres.
     """
     sigma = np.sqrt(np.maximum(variance, 1e-300))
     return 0.5 * (1.0 + erf((k_threshold - np.asarray(k_hat)) / (sigma * math.sqrt(2.0))))

@@ -1,6 +1,6 @@
 """Detection metrics on alarm and onset times: plain numpy, so they also score a recorded log.
 
-Definitions follow DESIGN.md ("Benchmark"): detection delay = alarm time - fault onset; a false
+Definitions follow docs/concepts.md ('Benchmark metrics'): detection delay = alarm time - fault onset; a false
 alarm is an alarm before onset or in a fault-free episode. Times are seconds of simulated time; an
 onset of None means a fault-free episode and an alarm time of None means the detector never alarmed.
 Each episode contributes its first alarm only.
@@ -8,7 +8,7 @@ Each episode contributes its first alarm only.
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -36,7 +36,7 @@ def _same_length(**sequences: Sequence) -> int:
 
 
 def detection_delay(alarm_time, onset) -> float | None:
-    """Seconds from fault onset to the alarm (DESIGN.md: alarm time - fault onset).
+    """Seconds from fault onset to the alarm (docs/concepts.md, 'Benchmark metrics': alarm time - fault onset).
 
     None when there is no fault, no alarm, or the alarm came before onset: that alarm is a false
     alarm (`is_false_alarm`), not a detection of this fault.

@@ -27,7 +27,6 @@ from scipy import signal
 from .base import Biquad
 
 
-
 class ThresholdTest(NamedTuple):
     """A residual criterion of 001 Sec. 6.1 / Table 2: the residual, low-passed at `cutoff_hz` (2nd-order
     Butterworth), at or above `threshold` for `hold` s."""
@@ -58,12 +57,10 @@ class ConfirmationTest(NamedTuple):
 TABLE_2_NORM = ThresholdTest(5.5, 0.25, 5.0)
 TABLE_2_DERIVATIVE = ThresholdTest(25.0, 0.12, 5.0)
 #: The CUSUM on the residual's drop (`ResidualCusum`): drift allowance nu (m/s^2), threshold h (m/s), cutoff (Hz).
-#: Tuned on 12 fault-free qp-no-fault-long flights (0.76 h, `ftcgym thresholds --episodes 12 --seed 1000`,
-#: the tuning seeds): the residual's fast noise (its 5 Hz-filtered derivative has sigma ~4 m/s^2) made the CUSUM
-#: on the 5 Hz residual cross 2 m/s 25 times per hour, so it runs on the residual low-passed at 0.5 Hz (a ramp
-#: passes with ~0.5 s lag, the noise does not); nu = 1.0 m/s^2 (below 001's 2.5 m/s^2 ramp); h = 1.9 m/s, the
-#: tool's 1.82 m/s for 0.1% false detection per flight hour (001 Sec. 6.1's budget, run-rate method) rounded up.
-#: Offline on the same flights, a -2.5 m/s^2 ramp injected in cruise: median delay 1.84 s (Table 2 needs > 2.2 s).
+#: It runs on the residual low-passed at 0.5 Hz, not at Table 2's 5 Hz: a ramp passes with ~0.5 s lag, the
+#: residual's fast noise does not. nu = 1.0 m/s^2, below 001's 2.5 m/s^2 ramp; h = 1.9 m/s, the threshold for 0.1%
+#: false detection per flight hour (001 Sec. 6.1's budget, run-rate method, `ftcgym thresholds`) rounded up.
+#: Chosen on fault-free tuning flights; see docs/measurements.md, 'Tuning record: fdd/pitot_detection.py'.
 CUSUM_DEFAULT = CusumTest(1.0, 1.9, 0.5)
 
 

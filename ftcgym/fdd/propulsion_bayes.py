@@ -1,7 +1,7 @@
 """Propeller icing and electric-propulsion faults: the multiple-model Kalman/Bayes FDI of 003 Sec. III.
 
 Haaland, Wenz, Gryte, Hann, Johansen, "Detection and Isolation of Propeller Icing and Electric Propulsion
-System Faults in Fixed-Wing UAVs" (seed 003). Readings: pusher speed omega (rad/s), pusher current I_e (A)
+System Faults in Fixed-Wing UAVs" (003). Readings: pusher speed omega (rad/s), pusher current I_e (A)
 and airspeed V_a (m/s, the pitot). Fault states x = [theta_1, c_v, I_0] (Sec. II-B): 1 icing, 2 viscous
 friction, 3 static friction (zero-load current).
 
@@ -9,12 +9,12 @@ Per sample (`update`):
 1. Decimate: readings are averaged over blocks of 1 / fdi_hz s (003 Sec. IV-B suggests averaging). Over a
    block, eq. (1) integrates exactly to
        k_e mean(I_e) - Theta (omega_end - omega_start) / T = mean(C) x,  C = [Q_a*(omega, V), omega, k_e]
-   (eq. 9-11 with the erratum of seeds/README.md: y = k_e I_e - Theta omega_dot). Departure: eq. (10) drops
+   (eq. 9-11 with the erratum of docs/references.md: y = k_e I_e - Theta omega_dot). Departure: eq. (10) drops
    Theta omega_dot; our pusher is run by an airspeed loop, not a speed governor, and in light turbulence
    omega swings by +-60 rad/s within seconds (Theta omega_dot ~ 0.03 N m, far above a 10% friction
    fault, ~0.001 N m), so the term is kept, from the speeds at the block's boundaries, each estimated from the
    samples around it (`_BlockAverager`): one noisy sample per boundary put ~5e-4 N m on Theta omega_dot.
-2. Calibration (departure, issue 6): the detector's model errs by `coefficient_error` on C_Q, k_e, Theta,
+2. Calibration (departure): the detector's model errs by `coefficient_error` on C_Q, k_e, Theta,
    c_v* and I_0*. A 10% error in k_e alone shifts y by more than the static-friction fault, so a detector
    fed the erroneous x* would alarm at once. Like a vehicle identified in healthy flight, it therefore
    re-fits theta_1*, I_0* and Theta (instrumental variables; c_v* kept) over a healthy stretch of early cruise, at
@@ -25,56 +25,29 @@ Per sample (`update`):
    comparing Y^(0) with KF^(i) (eq. 29-30, S = s_detect R for both: Sec. III-B), each restarted from the
    prior Pi^h_1 = [2/3, 1/3] (eq. 32) every detection window L_D; at the end of a window
    H_D = H_1 or H_2 or H_3 (argmax of each). H_D raises the alarm (latched, `alarm_time`).
-4. Isolation (Sec. III-D, Fig. 4), with departures (issue 6: as first built here, sampling KF^(i) on the
-   airspeed step and testing on the return, it isolated icing 9/10, static 8/10, viscous 6/10 at `--seed 300`):
+4. Isolation (Sec. III-D, Fig. 4), with departures (003 samples KF^(i) on the airspeed step and tests on the
+   return, which here confuses the friction modes):
    (a) after the alarm it waits for the fault to develop (Sec. III-E: not before the KFs have stabilized):
    every KF's mean over the last `develop_window` s has moved by < `develop_ratio` of its distance from x*
    since the window before, or `max_develop` s have passed. An icing alarm comes ~15 s into a 50 s ramp,
-   and static models sampled on the ramp had picked the wrong mode. (b) Step 1 and 3: +`perturbation` m/s
+   and static models sampled on the ramp pick the wrong mode. (b) Step 1 and 3: +`perturbation` m/s
    (`airspeed_request`) for `level_seconds`, then the cruise airspeed for `level_seconds`; every valid
    sample from the last develop window on, the steps included (eq. 1 in integral form holds there too), is
    the isolation record. (c) Step 2: the static models Y^(0..3) (eq. 25-28), Y^(i) with x_ks^(i) in mode i,
    are least-squares fits to the whole record, each together with a correction (d theta_1*, d I_0*) of the
    healthy reference x* that must also fit the calibration record without a fault. A 10% viscous fault is
    ~8e-4 N m (0.04 A); what tells it from a static one is how it changes between the two airspeeds,
-   ~2e-4 N m, as large as the error of a reference fitted on ~50 s (on seed 1000 its mean residuals at the
-   two airspeeds were 4e-4 N m apart with the level samples alone), so the reference is re-tested with
+   ~2e-4 N m, as large as the error of a reference fitted on ~50 s, so the reference is re-tested with
    each hypothesis instead of trusted. (d) Step 4: the Bayes filter of eq. (29)-(31) runs over the
    innovations of both records from the uniform prior Pi^f_1 (eq. 33); if the winner's probability is below
    `p_confident` it steps again with the record kept (at most `max_cycles` steps), else, or after the
    last step, H_I = argmax. H_I > 0 sets `isolated` to the mode name; H_I = 0 (a false detection,
-   Sec. III-A) returns to detection (the alarm stays latched). Tuning, `--seed 1000`, 4 episodes per
-   scenario: the first build isolated icing 4/4, static 3/4, viscous 2/4; this one 4/4 each (winner's
-   posterior 0.53-0.98 for static and viscous: the margins stay thin), no alarm in 4 fault-free ones.
-   Held out (`--seed 300`, 10 per scenario): icing 10/10, static 8/10, viscous 7/10 (first build 9, 8, 6),
-   the 5 misses static <-> viscous or viscous -> icing at a winner's posterior of 0.50-0.70; detection and
-   false alarms unchanged. The floor is the airspeed reading: replaying recorded flights with the exact
-   coefficients, the 0.5 s samples of y - C x scatter by 1e-3 N m with the pitot (0.3 m/s noise, 0.05 s lag)
-   and 5e-4 with the true axial airspeed; with it (or 003 Sec. IV-B's 0.026 m/s) the recorded misses isolate
-   correctly, and giving the detector 3x more calibration and isolation data did not help. So the qp-propulsion
-   scenarios fly 003 Sec. IV-B's sensor model (`scenarios.PROPULSION_003_SENSORS`): held out (`--seed 305`)
-   icing 10/10, static 10/10, viscous 9/10 (one taken for static friction). What was left was the speed noise in
-   Theta omega_dot (~5e-4 N m per sample with one noisy speed at each block boundary); with the boundary
-   speeds estimated about the model's prediction (`_BlockAverager`, `omega_smoothing` = 0.1 s either side),
-   tuning seed 1000 (4 episodes per scenario) gave R 0.8-1.2e-7 instead of 3-5e-7 (N m)^2, viscous winners at
-   0.82-0.99 instead of 0.55-0.77 and every fault isolated, no false alarm. Held out, 10 per scenario, on a
-   new seed (`--seed 306`) and on the one just missed (`--seed 305`): no false alarm, every fault detected
-   (median delays icing 14.5 / 14.8 s, viscous 34.2 / 34.8 s, static 33.8 / 34.8 s) and isolated, 10/10 per
-   mode on each seed. With the 001 pitot (`--env-kwargs '{"sensors": {}}'`, `--seed 306`): isolation 10/10,
-   10/10, 9/10 (static), but false alarms in fault-free flights, late: 3 in 10 (3 in 10 on tuning seed 1000
-   too) while the model's omega_dot took the pitot's raw samples, 2 in 10 (0 on seed 1000) with the airspeed
-   low-passed. What remains is not understood: R, the Bayes filters' scale from the calibration residual, is
-   1.0-2x the residual's variance in detection there (2.2-2.9x with 003's sensors), and white residuals of
-   variance R alarm in only ~0.2% of 20 s windows (offline). One such flight (`--seed 306`, 4th, alarm at 195 s)
-   replayed offline with the speeds and currents as flown: with the true airspeed, no alarm; with the lagged
-   truth plus fresh 0.3 m/s noise, redrawn 80 times, 7 replays alarmed before the flight's own airspeed step (2%
-   of windows), 4 of them in the window ending at 155 s. Those windows' mean noise was not extreme (z -0.9 to
-   2.3) nor their R low, so the pitot's noise adds to slow content of the residual there. The test is that
-   fine: on the flight as flown, the alarm window's mean pitot error stood 0.017 m/s from the flight's, which
-   moved the torque residual by 0.44 sqrt(R). Nor is it serial correlation at the FDI rate, which the Bayes
-   filters' independence assumption would overcount: on the same 10 flights (session 23; on this build one false
-   alarm, that flight's) the calibration residual's lag-one autocorrelation was at most 0.07, and below 0 on the
-   alarming flight, so inflating S by the AR(1) factor (1 + rho) / (1 - rho) has nothing to correct there.
+   Sec. III-A) returns to detection (the alarm stays latched). The margins between the friction modes stay
+   thin, and the airspeed reading's noise sets the floor: with the 001 scenarios' pitot (0.3 m/s noise, 0.05 s
+   lag) the torque samples scatter about twice as much as with the true airspeed. The qp-propulsion scenarios
+   therefore fly 003 Sec. IV-B's sensor model (`scenarios.PROPULSION_003_SENSORS`). With the 001 pitot the
+   detector raises occasional late false alarms in fault-free flights, a cause not yet understood. The
+   measurements behind these choices: docs/measurements.md, 'Tuning record: fdd/propulsion_bayes.py'.
 
 The detector only runs while the pusher drives wing-borne flight (airspeed >= `min_airspeed` and current
 >= `min_current`, held for `settle` s) below 98% of the ESC's speed limit (there the speed is clipped and
@@ -187,8 +160,8 @@ class _BlockAverager:
     estimated from the 2m + 1 samples centred on it, about the speed the model predicts: with `rate` the model's
     omega_dot per sample (eq. 1) and W(t) its running integral, omega - W only carries the model's error (the
     fault, slow) and the noise, so its centred mean plus W at the boundary estimates the speed there; a plain
-    mean would smear the fast swings the current drives (on seed 1000: the 0.5 s scatter fell from 4.9e-4 to
-    1.9e-4 N m with m = 10 and the exact model, 2.3-2.9e-4 with its coefficients 10% off). A block is returned m
+    mean would smear the fast swings the current drives (measured: docs/measurements.md, 'Tuning record:
+    fdd/propulsion_bayes.py'). A block is returned m
     samples after its end boundary. Also returns an instrument for omega_dot: the same estimate from the m
     samples just before each centred window, whose noise is independent of theirs (the calibration's
     instrumental-variable fit of Theta needs it)."""
@@ -232,7 +205,8 @@ class _BlockAverager:
 
 @dataclass(frozen=True)
 class PropulsionBayesSettings:
-    """The parameters of `PropulsionBayesDetector`; each `PropulsionBayesDetector(..., **overrides)` keyword updates one."""
+    """The parameters of `PropulsionBayesDetector`; each keyword of `PropulsionBayesDetector(..., **overrides)`
+    updates one."""
 
     fdi_hz: float = 2.0                        # Hz, rate of the FDI samples (block averages of the readings)
     coefficient_error: float = 0.10            # the model's error on ERROR_COEFFICIENTS (`PropulsionModel`)
@@ -273,9 +247,9 @@ class PropulsionBayesDetector:
         s = self.settings = updated(settings or PropulsionBayesSettings(), overrides, "propulsion_bayes")
         if not (math.isfinite(sample_hz) and 0.0 < s.fdi_hz <= sample_hz):
             raise ValueError(f"sample_hz {sample_hz!r} and fdi_hz {s.fdi_hz!r}: need 0 < fdi_hz <= sample_hz")
-        for key, value in (("s_detect", s.s_detect), ("s_isolate", s.s_isolate), ("detection_window", s.detection_window),
-                           ("calibration_seconds", s.calibration_seconds), ("level_seconds", s.level_seconds),
-                           ("develop_window", s.develop_window), ("omega_smoothing", s.omega_smoothing)):
+        for key in ("s_detect", "s_isolate", "detection_window", "calibration_seconds", "level_seconds",
+                    "develop_window", "omega_smoothing"):
+            value = getattr(s, key)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"{key}: must be a positive number, got {value!r}")
         self.model = PropulsionModel(params, s.coefficient_error, s.error_seed)
@@ -286,9 +260,11 @@ class PropulsionBayesDetector:
         self.L_detect = self._samples(s.detection_window)
         self.perturbation, self.settle = float(s.perturbation), float(s.settle)
         self.n_calibration, self.n_develop = self._samples(s.calibration_seconds), self._samples(s.develop_window)
-        self.level_seconds, self.develop_ratio, self.max_develop = float(s.level_seconds), float(s.develop_ratio), float(s.max_develop)
+        self.level_seconds, self.develop_ratio = float(s.level_seconds), float(s.develop_ratio)
+        self.max_develop = float(s.max_develop)
         self.p_confident, self.max_cycles = float(s.p_confident), int(s.max_cycles)
-        self.min_airspeed, self.min_current, self.airspeed_key = float(s.min_airspeed), float(s.min_current), s.airspeed_key
+        self.min_airspeed, self.min_current = float(s.min_airspeed), float(s.min_current)
+        self.airspeed_key = s.airspeed_key
         self.max_speed = 0.98 * float(params.pusher_omega_max)
         self._rate_alpha = 1.0 - math.exp(-1.0 / (sample_hz * 0.5))     # 0.5 s low-pass of the airspeed
         self._averager = _BlockAverager(self.block, max(1, int(round(s.omega_smoothing * sample_hz))), 1.0 / sample_hz)
@@ -340,7 +316,7 @@ class PropulsionBayesDetector:
         if self._time - self._gate_since < self.settle - 1e-9 and self.phase == "waiting":
             return
         # eq. (1): the model's omega_dot for _BlockAverager, on the airspeed low-passed over 0.5 s; the pitot's
-        # per-sample noise (0.3 m/s on the 001 pitot) in it raised late false alarms (3 in 10 on tuning seed 1000)
+        # per-sample noise (0.3 m/s on the 001 pitot) in it raises late false alarms (docs/measurements.md)
         m = self.model
         previous = airspeed if self._rate_airspeed is None else self._rate_airspeed
         self._rate_airspeed = previous + self._rate_alpha * (airspeed - previous)
@@ -369,11 +345,11 @@ class PropulsionBayesDetector:
         """Collects [Q_a*, k_e, omega_dot] -> k_e I_e - c_v* omega at both airspeeds, then fits theta_1*, I_0*
         and Theta (the detector's Theta errs too, and in turbulence Theta omega_dot is the largest term of the
         residual) by instrumental variables: omega_dot from noisy speeds would bias a least-squares Theta
-        toward 0. c_v* is kept: its term is small and nearly a combination of the others here (fitting it
-        too gave c_v* from 0.6 to 1.4 x its value). The samples of the airspeed changes are fitted as well
-        (eq. 1 in integral form holds there too): the fit is the healthy reference the isolation tests
-        against, and with the 30 level samples alone it left the two airspeeds' mean residuals
-        +-2e-4 N m from 0 (seed 1000), a tilt like a viscous fault's; with the steps, +-5e-5."""
+        toward 0. c_v* is kept: its term is small and nearly a combination of the others here, so a fit leaves
+        it poorly determined. The samples of the airspeed changes are fitted as well (eq. 1 in integral form
+        holds there too): the fit is the healthy reference the isolation tests against, and the level samples
+        alone leave it tilted between the two airspeeds like a viscous fault (docs/measurements.md, 'Tuning
+        record: fdd/propulsion_bayes.py')."""
         level = self.step_name in ("base", "high")
         self._calibration.append(([C[0], C[2], omega_dot[0]], [C[0], C[2], omega_dot[1]],
                                   motor_torque - C[1] * self.x_star[1], level))

@@ -13,8 +13,8 @@ import sys
 import numpy as np
 from scipy import signal
 
-from .logs import FTCGYM_ROTOR_ORDER, PX4_QUAD_X_ORDER, FlightLog, read_log
 from .loe_kalman import SIGNS_000, LoeKalmanDetector, lowpass_coefficients
+from .logs import FTCGYM_ROTOR_ORDER, PX4_QUAD_X_ORDER, FlightLog, read_log
 
 #: Sign of each rotor's thrust in [p_dot, q_dot, a_z] (000 eq. 8-9 with the rotor positions of each layout):
 #: a rotor at y < 0 rolls right (+p), at x > 0 pitches up (+q), and every rotor pushes a_z negative.

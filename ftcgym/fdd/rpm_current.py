@@ -2,7 +2,7 @@
 
 001 Table 3 ties the air-data EKF's a_x innovation to two sensors, the pusher RPM and the skew, and 001 flies
 the a_x test alone. The test also fires on large EKF errors of its own (an autopilot pitch oscillation in strong
-wind, a model error after the transition: 2 false pusher-RPM alarms in 30.7 fault-free hours, README). A check
+wind, a model error after the transition; docs/measurements.md). A check
 that does not use the EKF tells them apart. Departure from 001: the quad-plane measures the pusher current (003
 uses it), and 003 eq. (1) ties the two:
 
@@ -18,14 +18,12 @@ needs neither the pitot nor the EKF. A reading that fails low leaves the measure
 is compared with `threshold` (A) for `hold` s. The allowance widens every term of the bound by that fraction:
 1 doubles it, which covers the detector's model error (`coefficient_error` on k_e, Theta, C_Q, c_v, I_0: the
 bound may read ~20% low) together with 003's faults (1.1 times nominal in our scenarios; icing at 1.5 times
-even in static thrust, friction at 2 times). 0.5 did not: icing at 1.5 times in static thrust then alarmed.
+even in static thrust, friction at 2 times).
 Speed and current are low-passed at `cutoff` Hz (the EKF prefilter's 2nd-order Butterworth); dw/dt is the
 filtered speed's backward difference. A reading stuck high is not covered (the modelled RPM fault reads zero).
 
-Sizes (seed 7 of `qp-rpm-sensor-fault`, exact model): cruise at 750 rad/s draws 17.6 A, the bound at V = 0 is
-25 A (50 A widened); once the reading is zeroed the widened bound is 2 I_0 = 2 A and the excess ~15 A. On five
-recorded flights (2 fault-free, 3 with 003's faults; 6 draws of the model error) the excess peaks at -1.7 A,
-at idle (0 A drawn where 2 I_0 is allowed).
+A zeroed reading leaves a widened bound of 2 I_0, far below a cruise current. The allowance and the sizes of the
+excess on recorded flights: docs/measurements.md, 'Tuning record: fdd/rpm_current.py'.
 """
 from __future__ import annotations
 
@@ -35,9 +33,9 @@ from typing import NamedTuple
 import numpy as np
 from scipy import signal
 
+from ..models.pusher import TWO_PI
 from .base import Biquad
 from .pitot_detection import ThresholdCriterion
-from ..models.pusher import TWO_PI
 from .propulsion_bayes import PropulsionModel
 
 

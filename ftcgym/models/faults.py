@@ -12,7 +12,7 @@ Kinds (quadrotor):
 - payload: the mass changes by `magnitude` kg linearly over `duration` s (004 Sec. 5.1: +0.5 kg over 2 s).
 - sensor_bias / sensor_stuck / sensor_dropout: sensor `target` (an observation key) reads value + magnitude,
   holds its value at onset, or reads zero; for `duration` s or for good.
-Kinds (quad-plane, issue 5; rotor_loss and loe act on its hover rotors):
+Kinds (quad-plane; rotor_loss and loe act on its hover rotors):
 - pitot_blockage: the pitot reads zero (target "zero", the default) or holds its value ("stuck") from onset;
   with `rate` (m/s^2) it is incipient: the reading drifts down at that rate, floored at zero (001 Sec. 7.2.2:
   2.5 m/s^2).
@@ -27,8 +27,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 
@@ -43,7 +43,7 @@ PITOT_MODES = ("zero", "stuck")
 PROPULSION_KINDS = {"propeller_icing": "theta_1", "viscous_friction": "c_v", "static_friction": "I_0"}
 QUADPLANE_KINDS = (ROTOR_KINDS + SENSOR_KINDS + ("pitot_blockage",) + tuple(NAMED_SENSOR_FAULTS)
                    + tuple(PROPULSION_KINDS))
-RANDOM_ONSET_WINDOW = (2.0, 5.0)  # s, onset window of "random:<kind>" (DESIGN.md scenario quad-rotor-loss-hover)
+RANDOM_ONSET_WINDOW = (2.0, 5.0)  # s, onset window of "random:<kind>" (docs/concepts.md, 'Faults')
 _DEFAULT_MAGNITUDE = {"rotor_loss": 1.0, "loe": 0.5, "payload": 0.5, "sensor_bias": 0.1,
                       "sensor_stuck": None, "sensor_dropout": None, "pitot_blockage": None, "gnss": None,
                       "pusher_rpm_sensor": None, "skew_sensor": None,
@@ -119,7 +119,7 @@ def _check_target(kind, target, where, n_rotors, sensor_names):
         targets = target if isinstance(target, (list, tuple)) and kind == "loe" else [target]
         ok = all(isinstance(t, (int, np.integer)) and not isinstance(t, bool) and 0 <= t < n_rotors for t in targets)
         if not ok or not targets:
-            accepted = "a rotor index 0..%d, 'random'" % (n_rotors - 1) + (" or a list of indices" if kind == "loe" else "")
+            accepted = f"a rotor index 0..{n_rotors - 1}, 'random'" + (" or a list of indices" if kind == "loe" else "")
             raise ValueError(f"{where}: {target!r} is not accepted for {kind}; accepted: {accepted}")
         return tuple(int(t) for t in targets) if kind == "loe" else int(target)
     if kind in SENSOR_KINDS:

@@ -10,8 +10,8 @@
 003 takes the current I_e as measured; a simulator must produce it. We add the usual DC-motor electrical
 equation (our assumption, not in 003): the ESC applies u V_bat, so I_e = (u V_bat - k_e w) / R, clipped
 at 0 (no regeneration) and at the ESC's current limit (without it a throttle step from rest would draw
-V_bat / R = 444 A and kick the airframe with 8 N m). Erratum (seeds/README.md): 003 eq. (9) prints y = -k_e I_e; eq. (1) gives
-y = k_e I_e - Theta dw/dt, which is what `steady_state_current` inverts.
+V_bat / R = 444 A and kick the airframe with 8 N m). Erratum (docs/references.md, 'Known errata'): 003 eq. (9)
+prints y = -k_e I_e; eq. (1) gives y = k_e I_e - Theta dw/dt, which is what `steady_state_current` inverts.
 
 Terms are written expanded in n and V (C_Q0 n^2 + C_Q1 n V / D + C_Q2 V^2 / D^2), which equals eq. (2)-(4)
 for w > 0 and stays finite at w = 0. Axial airspeed below 0 (flow from behind) is treated as 0.

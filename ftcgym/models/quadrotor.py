@@ -14,7 +14,8 @@ import numpy as np
 
 from .constants import GRAVITY
 
-#: yaw reaction-torque sign per rotor (004 eq. 7; DESIGN.md): + means +z (FRD) torque on the body.
+#: yaw reaction-torque sign per rotor (004 eq. 7; docs/concepts.md, 'Rotor numbering'): + means +z (FRD)
+#: torque on the body.
 YAW_SIGNS = (1.0, -1.0, 1.0, -1.0)
 
 
@@ -87,7 +88,7 @@ class QuadrotorParams:
         return np.array([c * self.arm_y / ixx, c * self.arm_x / iyy, c / self.mass])
 
 
-_SUN = "SihaoSun/INDI_Quadrotor_FTC Bebop2Model (VEHICLES.md)"
+_SUN = "SihaoSun/INDI_Quadrotor_FTC Bebop2Model (docs/vehicles.md)"
 
 BEBOP2 = QuadrotorParams(
     name="bebop2",
@@ -130,7 +131,7 @@ MUELLER2014 = QuadrotorParams(
     motor_time_constant=0.015,                    # assumed, typical small brushless motor
     max_rotor_acceleration=5.0e4,                 # assumed, as bebop2
     propeller_radius=0.1,                         # assumed
-    propeller_inertia=1.5e-5,                     # 001 App. B (without its 1e-6 unit slip, VEHICLES.md)
+    propeller_inertia=1.5e-5,                     # 001 App. B (without its 1e-6 unit slip, docs/vehicles.md)
     rotor_drag_coefficient=1.0e-5,                # assumed, as bebop2
     body_drag=(0.03, 0.03, 0.05),                 # assumed
     rotational_drag=(1.0e-4, 1.0e-4, 2.75e-3),    # yaw: gamma_1_z = 2.75e-3 N m s (001 App. B); roll/pitch assumed
@@ -165,7 +166,8 @@ def named_params(catalogue: dict, vehicle: str, overrides: dict | None = None):
         try:
             arr = np.asarray(value, dtype=float)
         except (TypeError, ValueError):
-            raise ValueError(f"vehicle_overrides[{key!r}]: must be a number or a list of numbers, got {value!r}")
+            raise ValueError(f"vehicle_overrides[{key!r}]: must be a number or a list of numbers, "
+                             f"got {value!r}") from None
         if not np.all(np.isfinite(arr)):
             raise ValueError(f"vehicle_overrides[{key!r}]: must be finite, got {value!r}")
         expected = np.shape(getattr(params, key))

@@ -74,7 +74,7 @@ class RotorSet:
         """Force and moment on the body (FRD) from all rotors.
 
         - thrust c_T k_i omega_i^2 along -z (000 eq. 3) and its moments (000 eq. 4, 8);
-        - drag torque c_Q k_i omega_i^2 with the yaw signs of DESIGN.md / 004 eq. (7);
+        - drag torque c_Q k_i omega_i^2 with the yaw signs of 004 eq. (7) (docs/concepts.md, 'Rotor numbering');
         - rotor drag -k_d k_i omega_i v_inplane, proportional to airspeed times rotor speed (001 Sec. 4.3);
         - gyroscopic moment -Omega x h of the spinning propellers and the reaction to their spin-up.
           Propeller i spins about -s_i z (s_i its yaw sign), so h = -I_p sum(s_i omega_i) z.

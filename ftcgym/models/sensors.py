@@ -40,7 +40,7 @@ class SensorConfig:
     position_hz: float = 100.0          # Hz, sample-and-hold rate of position and velocity
 
     @classmethod
-    def from_overrides(cls, overrides: dict | None) -> "SensorConfig":
+    def from_overrides(cls, overrides: dict | None) -> SensorConfig:
         if not overrides:
             return cls()
         names = {f.name for f in dataclasses.fields(cls)}
@@ -134,7 +134,7 @@ def _perturb(q, half_angles) -> np.ndarray:
 
 @dataclass(frozen=True)
 class QuadPlaneSensorConfig(SensorConfig):
-    """The quadrotor's sensors with outdoor navigation rates, plus the quad-plane's own (issue 5)."""
+    """The quadrotor's sensors with outdoor navigation rates, plus the quad-plane's own."""
 
     position_noise: float = 0.3           # m, navigation-filter position (GNSS-aided), assumed
     velocity_noise: float = 0.05          # m/s, navigation-filter velocity, assumed

@@ -5,7 +5,7 @@
   along the path, plus 004's sinusoidal speed excitation
   v = 0.5 sin(2.51t)cos(3.14t) + 0.5 sin(3.14t)cos(4.19t) + 0.5 sin(4.19t)cos(6.28t),
   optionally turning the heading by 90 deg at each corner (004's second scenario).
-- mission (quad-plane, issue 5): take off at home, hover, transition along the take-off heading (into the
+- mission (quad-plane): take off at home, hover, transition along the take-off heading (into the
   mean wind; north in calm air), fly `laps` of a circle of `circuit_radius` m through home (centre to the
   right of that heading: clockwise seen from above) at `cruise_airspeed`, back-transition, return to home
   and land. The phases are the autopilot's (`agents.quadplane_autopilot`); the task's own reference is

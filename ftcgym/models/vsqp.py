@@ -28,40 +28,9 @@ left (-N).
 
 ## Derivation of the coefficients
 
-001 gives the model's form (eq. 6-30, 8.3) and magnitudes, not every coefficient. "Given" = printed in a
-source; "derived" = computed from given numbers; "assumed" = chosen, with the reason.
-
-| quantity | value | how |
-|---|---|---|
-| mass | 6.5 kg | given, 001 App. B "VSQP_V2" |
-| Ixx, Izz | 2.862e-2, 2.158e-1 kg m^2 | given, 001 App. B ("estimated from prototype") |
-| Iyy | 0.187 kg m^2 | derived: Izz - Ixx (perpendicular-axis rule for a flat body); 001 gives none |
-| hover arms | 0.435 m (all four) | given: l = (470+400)/2 mm, 001 App. B (one arm length; equal arms balance the 3 deg tilts in hover) |
-| k_f hover | 9.78e-5 N/(rad/s)^2 | derived: (1.27e-6 + 8.75e-7)/2 N/RPM^2 (001 App. B) / (pi/30)^2 |
-| k_t hover | 2.787e-6 N m/(rad/s)^2 | derived: 2.85e-2 m torque/thrust (001 App. B, MN3520 + 17x5) * k_f |
-| hover speed | 404 rad/s = 3,858 RPM | derived: m g = 4 k_f w^2 cos(3 deg); 001 App. A: 3,800-4,100 RPM |
-| hover max speed | 565 rad/s = 5,400 RPM | assumed: thrust-to-weight 1.96 (001 Table 5.1 plans 2); 001: "up to ~5,000 RPM" |
-| rotor drag | 4.48e-4 N s/m per rad/s per rotor | derived: 4 k w = 0.75 N s/m at 4,000 RPM (001 App. A, Fig. 17a), eq. 16-17 |
-| wing | S 0.5 m^2, b 2.0 m, c 0.25 m, AR 8 | assumed: 1 g stall 13.55 m/s at the model's C_Lmax 1.13 with W = 63.8 N |
-| CL_alpha wing | 4.91 /rad | derived: Helmbold 2 pi A / (2 + sqrt(A^2 + 4)), A = 8 |
-| CL0, incidence | 0.30, 1.2 deg | assumed: cambered low-Re airfoil; incidence puts the trim alpha in [0, 10] deg from stall to 22 m/s |
-| CD0, Oswald | 0.012, 0.80 | assumed, usual for a clean UAV wing at Re ~ 4e5 |
-| Cm0, AC offset | -0.07, 0.02 m ahead of the pivot | assumed: cambered airfoil; CG 8% chord behind the AC |
-| stall | +13 / -8 deg wing alpha, blend 60 /rad | assumed: C_Lmax 1.13 at 10.7 deg wing alpha; past it a flat plate, C_N90 1.17 (Hoerner, as 001 App. B) |
-| Cl_p | -0.45 | derived: strip theory -a/6 = -0.82 times ~0.55 for induced effects (Etkin) |
-| fuselage CdA | x 0.012, y 0.25, z 0.20 m^2 | assumed: 1.2 m x 0.15-0.2 m fuselage (Cd 0.5 frontal, 1.0 side/top); eq. 8, 10 (K_xf = -0.0074, K_yfb = -0.153) |
-| tail arm | 0.757 m | given, 001 App. B (V3 CAD) |
-| vertical tail | 0.17 x 0.25 m, C_d 1.17 | given, 001 App. B; lift slope 2.06 /rad (Helmbold, A = 1.47) |
-| stabilator | 0.075 m^2, A 3.3, a 3.55 /rad | assumed (001 Sec. 5.1.2: V2 has an all-moving tail); tail volume 0.45 |
-| downwash | eps = 2 CL_w / (pi A) | derived: elliptic lifting line |
-| aileron Cl_delta | 0.20 /rad (ref S b) | assumed, typical UAV; skew scaling of 001 eq. 8.3 |
-| rudder | tau 0.5 | assumed: rudder 40% of fin chord (Raymer's flap-effectiveness chart) |
-| surfaces limits | 20, 20, 25 deg | assumed, usual servo throws |
-| skew rate | 0.6 rad/s | assumed: 001 Sec. 4.4 "transition occurs rapidly in 4-5 s" |
-| transition | 4 to 14.5 m/s | assumed: 001 Sec. 8.1.2 (skews from ~5 m/s, 90 deg by ~12 m/s on the 3 kg prototype); ends above our 13.55 m/s stall speed |
-| pusher prop | D 0.33 m (13x8), C_T = 0.075 - 0.095 J | assumed: 30 N static at full throttle (001 App. A: ~30 N), 8,000 RPM trim at 22 m/s (001: ~8,000 RPM); 001 eq. 12 |
-| pusher C_Q | 0.0065 - 0.0021 J - 0.0052 J^2 | assumed: C_P0 0.041, efficiency ~0.65 at J = 0.5, C_Q ~ 0 near windmilling; 003 eq. 3 |
-| pusher motor | k_e 0.0191 V s/rad (500 kV), R 0.05 ohm, I_0 1 A, c_v 1e-5 N m s, Theta 3e-4 kg m^2 | assumed, 500 kV outrunner on 6S (22.2 V) |
+001 gives the model's form (eq. 6-30, 8.3) and magnitudes, not every coefficient. Each number below says
+whether it is given (printed in a source), derived (computed from given numbers) or assumed (chosen, with the
+reason); docs/vehicles.md, "Derivation of the coefficients", tabulates them.
 """
 from __future__ import annotations
 
@@ -263,9 +232,9 @@ VSQP = VsqpParams(
     transition_end_speed=14.5,                            # assumed: above the 1 g stall speed (13.55 m/s)
     body_size=(1.30, 0.90, 0.25),                         # assumed: fuselage length x landing-gear track x height
     sources={
-        "general": f"{_LAROCQUE} Part II App. B 'VSQP_V2', Part I Sec. 4 and App. A; VEHICLES.md",
+        "general": f"{_LAROCQUE} Part II App. B 'VSQP_V2', Part I Sec. 4 and App. A; docs/vehicles.md",
         "pusher": "003 (Haaland et al.) eq. 1-5 with assumed 13x8 propeller and 500 kV motor",
-        "derivations": "module docstring of ftcgym/envs/vsqp.py",
+        "derivations": "module docstring of ftcgym/models/vsqp.py; docs/vehicles.md",
     },
 )
 

@@ -182,7 +182,7 @@ class DrydenWind:
         self._index = 0
 
     @classmethod
-    def from_config(cls, config: dict | None, dt: float) -> "DrydenWind":
+    def from_config(cls, config: dict | None, dt: float) -> DrydenWind:
         """Build from the env's `wind` kwarg: None/{} -> calm; keys "mean", "turbulence", "airspeed"."""
         if config is None:
             config = {}

@@ -1,4 +1,4 @@
-"""Task `airspeed-source` (issue 7): which airspeed to feed the quad-plane autopilot, from the pitot reading
+"""Task `airspeed-source`: which airspeed to feed the quad-plane autopilot, from the pitot reading
 and the `airdata_ekf` detector's outputs.
 
 `ftcgym/AirspeedSource-v0` wraps `ftcgym/QuadPlaneAutopilot-v0` (whose action is the airspeed the autopilot
@@ -69,7 +69,8 @@ def airspeed_features(obs: dict, status: dict, weight: float) -> np.ndarray:
     pitot = float(obs["pitot_airspeed"][0])
     synthetic = float(obs[f"fdd/{DETECTOR}/airspeed"][0])
     alarm_time = status.get("pitot_alarm_time")
-    age = 0.0 if alarm_time is None else min(max(status.get("time", alarm_time) - alarm_time, 0.0) / ALARM_AGE_SCALE, 1.0)
+    since = 0.0 if alarm_time is None else max(status.get("time", alarm_time) - alarm_time, 0.0)
+    age = min(since / ALARM_AGE_SCALE, 1.0)
     innovation = any(t is not None for t in (status.get("innovation_alarms") or {}).values())
     phase = np.zeros(len(PHASES))
     phase[int(round(float(obs["mission_phase"][0])))] = 1.0
@@ -158,8 +159,9 @@ class AirspeedSourceEnv(gym.Env):
         if action.size != 1 or not np.all(np.isfinite(action)):
             raise ValueError(f"action: must be one finite number, got {action!r}")
         self._weight = to_weight(action)
-        reward, info, terminated, truncated = 0.0, self._info, False, False
-        for n in range(1, self.action_repeat + 1):
+        reward, info, terminated, truncated, n = 0.0, self._info, False, False, 0
+        while n < self.action_repeat:
+            n += 1
             fed = blend(self._obs, self._weight)
             self._obs, _, terminated, truncated, info = self.env.step(fed)
             self._info = info

@@ -4,7 +4,8 @@ is the airspeed (m/s) the autopilot schedules on (wing skew, surface effectivene
 synthetic estimate (the `airdata_ekf` detector's), or anything in between.
 
 Same kwargs, observation and `info` contract as QuadPlane-v0, plus the observation `mission_phase` (index in
-`PHASES`) and `info["mission"]` = {"phase", "airspeed_used", "cruise_airspeed"}. Action: Box(0, 60, (1,)) m/s, clipped; a
+`PHASES`) and `info["mission"]` = {"phase", "airspeed_used", "cruise_airspeed"}. Action: Box(0, 60, (1,)) m/s,
+clipped; a
 non-finite or wrongly shaped action raises ValueError. Reward per step: 1 - min(|a - V_true|, 10) / 10 (how
 well the airspeed fed matches the truth; a policy sees only sensors), -100 on a crash. The episode
 terminates when the mission ends on the ground (`landed`) or on a crash; truncated after
@@ -21,7 +22,8 @@ from ..agents.quadplane_autopilot import PHASES, QuadPlaneAutopilot
 from ..envs.quadplane import CRASH_PENALTY, QuadPlaneEnv
 
 MAX_AIRSPEED_ACTION = 60.0   # m/s
-MAX_AIRSPEED_OFFSET = 6.0    # m/s, largest cruise-setpoint change a detector may ask for (stays above stall, below 24 m/s)
+#: m/s, largest cruise-setpoint change a detector may ask for (stays above stall, below 24 m/s)
+MAX_AIRSPEED_OFFSET = 6.0
 
 
 class QuadPlaneAutopilotEnv(gym.Env):
@@ -55,7 +57,8 @@ class QuadPlaneAutopilotEnv(gym.Env):
         landed = self.autopilot.phase == "landed"
         terminated = terminated or landed
         truncated = truncated and not terminated
-        reward = -CRASH_PENALTY if info["crashed"] else 1.0 - min(abs(airspeed - info["truth"]["airspeed"]), 10.0) / 10.0
+        error = abs(airspeed - info["truth"]["airspeed"])
+        reward = -CRASH_PENALTY if info["crashed"] else 1.0 - min(error, 10.0) / 10.0
         return self._observe(obs), float(reward), terminated, truncated, self._augment(info)
 
     def request_airspeed_offset(self, offset: float) -> None:

@@ -1,6 +1,6 @@
 """Training tasks: Gymnasium envs shaped for learning a recovery policy.
 
-`ftcgym/RotorLossRecovery-v0` (issue 7, task `rotor-loss-recovery`): a motor-level policy that takes over
+`ftcgym/RotorLossRecovery-v0` (task `rotor-loss-recovery`): a motor-level policy that takes over
 from the nominal controller at the `loe_kalman` alarm after a propeller loss.
 
 - Episode: `reset` builds `ftcgym/Quadrotor-v0` wrapped with the `loe_kalman` detector, flies the
@@ -60,7 +60,7 @@ CRASH_PENALTY = 100.0
 
 # The half turn about body z: rotor r1..r4 (000 eq. 4: front-left, front-right, back-right, back-left) goes to
 # r3, r4, r1, r2 and a body vector (or body rate) (x, y, z) to (-x, -y, z). The diagonal rotors sit at
-# opposite positions and spin the same way (`rotor_positions` and YAW_SIGNS in envs/vehicles.py), so the
+# opposite positions and spin the same way (`rotor_positions` and YAW_SIGNS in models/quadrotor.py), so the
 # turned vehicle is the same vehicle: a loss of r3 or r4 is a loss of r1 or r2 seen half a turn round.
 HALF_TURN_ROTORS = np.array([2, 3, 0, 1])
 HALF_TURN_BODY = np.array([-1.0, -1.0, 1.0])
@@ -85,12 +85,10 @@ def recovery_features(obs: dict, status: dict, omega_max: float) -> np.ndarray:
     by `rotor_order`. Clipped to +-10.
 
     Two symmetries of the recovery are built in rather than left to be learned. Heading: gravity is the
-    only direction the flight has, so no feature depends on the yaw (with the world-frame attitude and
-    errors of the earlier 38 features a policy had to learn each leg of the square apart). Half turn: a
-    loss of r3 or r4 is shown as the equivalent loss of r1 or r2. On tuning flights (`ftcgym bench
-    --scenario quad-rotor-loss-maneuver --policy learned-spin --episodes 20 --seed 1000`, 500k DAgger
-    samples each) the square went from 7/20 recovered with the heading symmetry alone to 14/20 with both
-    (docs/measurements.md).
+    only direction the flight has, so no feature depends on the yaw (with world-frame attitude and errors a
+    policy has to learn each leg of the square apart). Half turn: a loss of r3 or r4 is shown as the
+    equivalent loss of r1 or r2. Both help on the square; see docs/measurements.md, '`learned-spin` on
+    manoeuvres: DAgger attempts'.
     """
     prefix = f"fdd/{DETECTOR}/"
     isolated = np.zeros(4)

@@ -114,5 +114,6 @@ def load_config(name_or_path: str, algo: str | None = None, n_envs: int | None =
         raise ValueError(f"policy_kwargs.activation_fn: {activation!r}; accepted: {list(ACTIVATIONS)}")
     least = 0 if config.pretrain else 1      # a pre-trained policy may ship without RL fine-tuning
     if config.n_envs < 1 or config.total_steps < least:
-        raise ValueError(f"n_envs must be >= 1 and total steps >= {least}, got {config.n_envs} and {config.total_steps}")
+        raise ValueError(f"n_envs must be >= 1 and total steps >= {least}, "
+                         f"got {config.n_envs} and {config.total_steps}")
     return config

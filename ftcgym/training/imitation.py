@@ -49,7 +49,7 @@ class DaggerSettings:
     final_epochs: int = 0                 # after the last iteration: passes over the whole set, rate annealed to 0
 
     @classmethod
-    def from_config(cls, section: dict) -> "DaggerSettings":
+    def from_config(cls, section: dict) -> DaggerSettings:
         known = set(cls.__dataclass_fields__)
         unknown = sorted(set(section) - known - {"method"})
         if unknown:

@@ -1,4 +1,5 @@
-"""`LearnedPolicy`: a saved Stable-Baselines3 model behind the policy interface of DESIGN.md.
+"""`LearnedPolicy`: a saved Stable-Baselines3 model behind the policy interface of docs/concepts.md
+('Policies and oracles').
 
 For a model trained on `ftcgym/RotorLossRecovery-v0` it flies as the task does: the nominal controller
 until the `loe_kalman` alarm, then the model on `recovery_features` (normalised with the saved
@@ -6,10 +7,10 @@ VecNormalize statistics), its action rescaled to motor commands and held for the
 steps. For a model trained on another env id it acts on the raw observation at every step.
 Actions are deterministic.
 
-Recovery is scored against the policy's `thrust_axis_reference` (DESIGN.md). A vehicle without one
-propeller recovers into the relaxed hover (Mueller & D'Andrea 2014; 001 App. B), whose thrust axis circles
-the commanded primary axis at the equilibrium's tilt. `axis_reference` picks how the learned policy states
-where its thrust axis belongs after the alarm:
+Recovery is scored against the policy's `thrust_axis_reference` (docs/concepts.md, 'Benchmark metrics').
+A vehicle without one propeller recovers into the relaxed hover (Mueller & D'Andrea 2014; 001 App. B), whose
+thrust axis circles the commanded primary axis at the equilibrium's tilt. `axis_reference` picks how the
+learned policy states where its thrust axis belongs after the alarm:
 - "ftc-spin" (default): where `ftc-spin`'s would, from a shadow `SpinRecoveryController` engaged on the
   isolated rotor that sees every observation and never flies. The two policies are then scored by the same
   rule: the equilibrium's thrust axis about the primary axis that ftc-spin's position loop commands (it
@@ -30,10 +31,15 @@ from ftcgym.models.geometry import rotation_matrix
 from ftcgym.task_envs.airspeed_source import DETECTOR as AIRSPEED_DETECTOR
 from ftcgym.task_envs.airspeed_source import ENV_ID as AIRSPEED_ENV_ID
 from ftcgym.task_envs.airspeed_source import airspeed_features, blend, to_weight
-from ftcgym.task_envs.rotor_loss_recovery import (DETECTOR, N_FEATURES, recovery_features, rotor_order,
-                                                  to_motor_command)
-from ftcgym.training.saved import (MANIFEST_FILE, MODEL_FILE, NORMALIZER_FILE, SavedModelPolicy,  # noqa: F401
-                                   load_normalizer, model_files)
+from ftcgym.task_envs.rotor_loss_recovery import DETECTOR, N_FEATURES, recovery_features, rotor_order, to_motor_command
+from ftcgym.training.saved import (  # noqa: F401
+    MANIFEST_FILE,
+    MODEL_FILE,
+    NORMALIZER_FILE,
+    SavedModelPolicy,
+    load_normalizer,
+    model_files,
+)
 
 TASK_ENV_ID = "ftcgym/RotorLossRecovery-v0"
 
@@ -61,7 +67,8 @@ class LearnedPolicy(SavedModelPolicy):
                                  f"({N_FEATURES},); a model of the earlier 38-feature layout must be retrained "
                                  f"(`ftcgym train`)")
             if env is None:
-                raise ValueError("LearnedPolicy: a rotor-loss-recovery model needs the env (for its nominal controller)")
+                raise ValueError("LearnedPolicy: a rotor-loss-recovery model needs the env (for its nominal "
+                                 "controller)")
             self.nominal = make_policy("nominal", env)
             self.omega_max = env.unwrapped.params.omega_max
             self._shadow = SpinRecoveryController(env.unwrapped.params, env.unwrapped.agent_hz)
@@ -117,7 +124,8 @@ class LearnedAirspeedPolicy(SavedModelPolicy):
     detector = AIRSPEED_DETECTOR
     DEFAULT_ENV_ID = AIRSPEED_ENV_ID
 
-    def __init__(self, model, normalizer=None, env_id: str = AIRSPEED_ENV_ID, task_kwargs: dict | None = None, env=None):
+    def __init__(self, model, normalizer=None, env_id: str = AIRSPEED_ENV_ID, task_kwargs: dict | None = None,
+                 env=None):
         self.model, self.normalizer, self.env_id = model, normalizer, env_id
         self.action_repeat = int((task_kwargs or {}).get("action_repeat", 10))
         self.reset()

@@ -73,11 +73,10 @@ def train(config: TrainConfig, out: str | Path, progress: bool = True, command: 
     """Run `config`, write the outputs listed in the module docstring to `out`; returns the manifest.
     `init_from`: a saved model (folder or .zip, e.g. a shipped policy) whose weights and observation
     statistics start the run instead of the config's pre-training (fine-tuning)."""
+    import torch
     from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback
 
     from ftcgym.training.callbacks import BenchmarkEvalCallback, TqdmProgressCallback
-
-    import torch
 
     # Small MLPs update fastest on one thread; more threads contend with the env workers (and, on a
     # shared 2-core machine, slowed PPO's update by ~10x).
