@@ -15,12 +15,11 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import json
 import math
 
 import numpy as np
 
-from ftcgym.benchmark.backends import Callbacks, Job, int_at_least, run_jobs
+from ftcgym.benchmark.backends import Callbacks, Job, run_jobs
 from ftcgym.benchmark.runner import episode_seed, make_env, roll_out
 from ftcgym.benchmark.scenarios import get_scenario
 from ftcgym.fdd import false_alarm
@@ -235,88 +234,3 @@ def load_segments(path: str) -> dict[str, list[np.ndarray]]:
     for name in sorted(data.files, key=lambda n: (n.rsplit("__", 1)[0], int(n.rsplit("__", 1)[1]))):
         out.setdefault(name.rsplit("__", 1)[0], []).append(data[name])
     return out
-
-
-# ---- command line ----
-
-def add_study_arguments(parser) -> None:
-    parser.add_argument("--scenario", required=True, metavar="NAME", help="an airdata_ekf scenario")
-    _common(parser, episodes=10)
-    parser.add_argument("--out", metavar="FILE", help="write episodes and summary as JSON")
-
-
-def add_threshold_arguments(parser) -> None:
-    parser.add_argument("--scenario", default="qp-no-fault-long", metavar="NAME",
-                        help="fault-free airdata_ekf scenario to fly (default: qp-no-fault-long)")
-    _common(parser, episodes=4)
-    parser.add_argument("--target", type=float, default=1e-3, metavar="P",
-                        help="false detection probability per flight hour (default 1e-3: 001's 0.1%%)")
-    parser.add_argument("--tail", default="auto", choices=false_alarm.TAILS, help="tail model (default auto)")
-    parser.add_argument("--save", metavar="NPZ", help="save the fault-free signals flown")
-    parser.add_argument("--load", metavar="NPZ", help="use saved signals instead of flying")
-    parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
-
-
-def _common(parser, episodes: int) -> None:
-    parser.add_argument("--episodes", type=int, default=episodes, metavar="N")
-    parser.add_argument("--seed", type=int, default=0, metavar="S", help="run seed, as ftcgym bench --seed")
-    parser.add_argument("--policy", default="oracle-airspeed", metavar="NAME")
-    parser.add_argument("--env-kwargs", type=json.loads, default=None, metavar="JSON",
-                        help="merged into the scenario's env kwargs")
-    parser.add_argument("--detector-kwargs", type=json.loads, default=None, metavar="JSON",
-                        help='merged into the scenario\'s airdata_ekf kwargs, e.g. \'{"error_seed": 2}\'')
-    parser.add_argument("--workers", type=int_at_least(1), default=1, metavar="W",
-                        help="episodes flown in parallel processes (default 1)")
-
-
-def main_study(args) -> int:
-    config = {"scenario": args.scenario, "episodes": args.episodes, "seed": args.seed, "policy": args.policy,
-              "env_kwargs": args.env_kwargs, "detector_kwargs": args.detector_kwargs}
-    done = []
-
-    def progress(index, row):
-        delays = {name: row[f"delay_{name}"] for name in ALARMS}
-        print(f"episode {index} seed {row['seed']}: delays {delays}, false "
-              f"{[n for n in ALARMS if row[f'false_alarm_{n}']]}, airborne {row['airborne_time']:.0f} s", flush=True)
-        done.append(row)
-        _write(args.out, done, config)          # after every episode: a long run stopped early keeps its rows
-
-    results = study(args.scenario, args.episodes, args.seed, args.policy, args.env_kwargs, progress=progress,
-                    workers=args.workers, detector_kwargs=args.detector_kwargs)
-    print(json.dumps(summary(results), indent=1))
-    return 0
-
-
-def _write(path, results, config) -> None:
-    if path:
-        with open(path, "w") as f:
-            json.dump({"summary": summary(results), "episodes": results, "config": config}, f, indent=1)
-
-
-def main_thresholds(args) -> int:
-    if args.load:
-        segments = load_segments(args.load)
-    else:
-        results = study(args.scenario, args.episodes, args.seed, args.policy, args.env_kwargs, record=True,
-                        workers=args.workers, detector_kwargs=args.detector_kwargs)
-        if any(r["fault_onset"] is not None for r in results):
-            raise ValueError(f"scenario {args.scenario!r} has faults: thresholds need fault-free flights")
-        segments = traces_to_segments([r["trace"] for r in results])
-        if args.save:
-            save_segments(args.save, segments)
-    rows = threshold_table(segments, args.target, tail=args.tail)
-    if args.json:
-        print(json.dumps(rows, indent=1))
-        return 0
-    print(f"fault-free samples: {rows[0]['samples'] if rows else 0} at {EKF_HZ:g} Hz ({rows[0]['hours']:.2f} h); "
-          f"target {args.target:g} false detections per flight hour (001 eq. 40-41)")
-    head = ("criterion", "Z", "T s", "n", "p_single", "p_seq", "p_flight/h (eq. 41)", "runs/h seen", "rho1",
-            "max|rho|", "indep", "proposed Z", "method")
-    print(" | ".join(head))
-    for r in rows:
-        print(" | ".join([r["criterion"], f"{r['threshold']:g}", f"{r['hold_time']:g}", str(r["samples_in_sequence"]),
-                          f"{r['p_single']:.3g}", f"{r['p_seq']:.3g}", f"{r['p_flight_hour']:.3g}",
-                          f"{r['run_rate_per_hour']:.3g}", f"{r['rho_lag1']:.2f}", f"{r['max_abs_rho']:.2f}",
-                          "yes" if r["independent"] else "no",
-                          "-" if r["proposed_threshold"] is None else f"{r['proposed_threshold']:.3g}", r["method"]]))
-    return 0

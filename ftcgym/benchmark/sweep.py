@@ -22,17 +22,15 @@ finish), failures.jsonl, sweep_config.json, results.json, sets.csv, report.md an
 """
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import itertools
 import json
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import yaml
 
-from ftcgym.benchmark.backends import Callbacks, EpisodesFailed, Job, add_backend_arguments, run_jobs
+from ftcgym.benchmark.backends import Callbacks, EpisodesFailed, Job, run_jobs
 from ftcgym.benchmark.journal import EpisodeJournal
 from ftcgym.benchmark.runner import episode_seed, make_env
 from ftcgym.benchmark.scenarios import Scenario, get_scenario
@@ -305,57 +303,3 @@ def _claim_out_dir(journal: EpisodeJournal, config: SweepConfig, resume: bool) -
                              "resume with the same config and options, or choose another --out")
     journal.out_dir.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(config.to_json(), indent=2) + "\n")
-
-
-# ---- command line (ftcgym sweep) ----
-
-def add_arguments(parser) -> None:
-    parser.add_argument("config", metavar="CONFIG",
-                        help="sweep config YAML, or a built-in name (fig11: 000 Fig. 11, 19 sets x 33 flights)")
-    parser.add_argument("--out", metavar="DIR", help="output folder (default: sweep_out/<config name>)")
-    parser.add_argument("--resume", action="store_true",
-                        help="continue the sweep in --out, skipping the episodes it already finished")
-    parser.add_argument("--workers", type=_positive_int, default=None, metavar="W",
-                        help="worker processes or local Ray CPUs (default: one per CPU)")
-    parser.add_argument("--sets", nargs="+", metavar="NAME", help="run only these parameter sets")
-    parser.add_argument("--episodes", type=_positive_int, metavar="N",
-                        help="episodes per scenario (default: the config's)")
-    parser.add_argument("--env-kwargs", type=json.loads, default=None, metavar="JSON",
-                        help="JSON object merged into every scenario's gym.make kwargs")
-    parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=True,
-                        help="show a progress bar (default: on)")
-    add_backend_arguments(parser)
-
-
-def _positive_int(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text}")
-    return value
-
-
-def main(args, argv: list[str]) -> int:
-    import os
-    import shlex
-
-    from ftcgym.benchmark.sweep_report import write_sweep_report
-
-    try:
-        config = load_config(args.config).select(args.sets, args.episodes, args.env_kwargs)
-        out = args.out or os.path.join("sweep_out", config.name)
-        started = time.perf_counter()
-        rows = run_sweep(config, out, args.backend, args.workers or os.cpu_count() or 1, args.resume,
-                         progress=args.progress, ray_address=args.ray_address, chunk=args.chunk, retries=args.retries)
-    except ValueError as error:
-        raise SystemExit(f"ftcgym sweep: {error}") from None
-    except EpisodesFailed as error:
-        raise SystemExit(f"ftcgym sweep: {error}\nFinished episodes are kept in {out}; rerun with --resume.") from None
-    wall = time.perf_counter() - started
-    journal = EpisodeJournal(out)
-    run = {"command": shlex.join(["ftcgym", *argv]), "backend": args.backend, "workers": args.workers,
-           "wall_time_s": wall, "failed_attempts": len(journal.failures())}
-    table = write_sweep_report(out, config, rows, run)
-    print(table)
-    print(f"\n{len(rows)} episodes ({len(config.parameter_sets)} sets) in {wall:.1f} s; "
-          f"{run['failed_attempts']} failed attempt(s) in failures.jsonl; wrote results to {out}")
-    return 0

@@ -2,17 +2,57 @@
 (`ftcgym.benchmark.airdata_study`)."""
 from __future__ import annotations
 
+import json
+
+from .common import json_object, positive_int
+
 
 def add_parser(subparsers) -> None:
-    from ftcgym.benchmark import airdata_study as study
     parser = subparsers.add_parser(
         "airdata-study", help="every airdata_ekf criterion's alarm and the airspeed error on a scenario",
         description="Fly a scenario scored on airdata_ekf and report the Table 2 and CUSUM pitot alarms, the "
                     "innovation (GNSS, pusher RPM) alarms and the EKF airspeed error after detection.")
-    study.add_study_arguments(parser)
+    parser.add_argument("--scenario", required=True, metavar="NAME", help="an airdata_ekf scenario")
+    add_study_options(parser, episodes=10)
+    parser.add_argument("--out", metavar="FILE", help="write episodes and summary as JSON")
     parser.set_defaults(run=run)
 
 
+def add_study_options(parser, episodes: int) -> None:
+    """The options `airdata-study` and `thresholds` share."""
+    parser.add_argument("--episodes", type=positive_int, default=episodes, metavar="N")
+    parser.add_argument("--seed", type=int, default=0, metavar="S", help="run seed, as ftcgym bench --seed")
+    parser.add_argument("--policy", default="oracle-airspeed", metavar="NAME")
+    parser.add_argument("--env-kwargs", type=json_object, default=None, metavar="JSON",
+                        help="merged into the scenario's env kwargs")
+    parser.add_argument("--detector-kwargs", type=json_object, default=None, metavar="JSON",
+                        help='merged into the scenario\'s airdata_ekf kwargs, e.g. \'{"error_seed": 2}\'')
+    parser.add_argument("--workers", type=positive_int, default=1, metavar="W",
+                        help="episodes flown in parallel processes (default 1)")
+
+
 def run(args, argv: list[str]) -> int:
-    from ftcgym.benchmark import airdata_study as study
-    return study.main_study(args)
+    from ftcgym.benchmark.airdata_study import ALARMS, study, summary
+    config = {"scenario": args.scenario, "episodes": args.episodes, "seed": args.seed, "policy": args.policy,
+              "env_kwargs": args.env_kwargs, "detector_kwargs": args.detector_kwargs}
+    done = []
+
+    def progress(index, row):
+        delays = {name: row[f"delay_{name}"] for name in ALARMS}
+        print(f"episode {index} seed {row['seed']}: delays {delays}, false "
+              f"{[n for n in ALARMS if row[f'false_alarm_{n}']]}, airborne {row['airborne_time']:.0f} s", flush=True)
+        done.append(row)
+        _write(args.out, done, config)          # after every episode: a long run stopped early keeps its rows
+
+    results = study(args.scenario, args.episodes, args.seed, args.policy, args.env_kwargs, progress=progress,
+                    workers=args.workers, detector_kwargs=args.detector_kwargs)
+    print(json.dumps(summary(results), indent=1))
+    return 0
+
+
+def _write(path, results, config) -> None:
+    from ftcgym.benchmark.airdata_study import summary
+
+    if path:
+        with open(path, "w") as f:
+            json.dump({"summary": summary(results), "episodes": results, "config": config}, f, indent=1)
