@@ -295,4 +295,4 @@ def test_cli_table_and_errors(recording, capsys):
     missing = capsys.readouterr()
     assert missing.out == "" and "no_such_log.ulg" in missing.err
     assert main(["replay", str(path), "--detector", "nope"]) == 2
-    assert "available: loe_kalman" in capsys.readouterr().err
+    assert "cannot replay a log; replay sets up: loe_kalman" in capsys.readouterr().err

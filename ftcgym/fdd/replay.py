@@ -68,9 +68,9 @@ def make_detector(name: str, log: FlightLog, **overrides):
 
 
 def _detector_factory(name: str):
-    if name not in DETECTORS:
-        raise ValueError(f"unknown detector {name!r}; available: {', '.join(DETECTORS)}")
-    return DETECTORS[name]
+    if name not in REPLAYABLE:
+        raise ValueError(f"detector {name!r} cannot replay a log; replay sets up: {', '.join(REPLAYABLE)}")
+    return REPLAYABLE[name]
 
 
 def _loe_kalman(log: FlightLog, **overrides) -> LoeKalmanDetector:
@@ -98,7 +98,8 @@ def effectiveness_for_detector(log: FlightLog) -> np.ndarray:
     return B
 
 
-DETECTORS = {"loe_kalman": _loe_kalman}
+#: the detectors replay can set up for a log (their model identified from it), by name
+REPLAYABLE = {"loe_kalman": _loe_kalman}
 
 
 # ----------------------------------------------------------------------------------------- identification
