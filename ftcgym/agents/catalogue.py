@@ -113,21 +113,16 @@ def autopilot(env) -> AutopilotPolicy:
     return AutopilotPolicy(base.params, base.agent_hz, base.task)
 
 
-def pitot_only(env) -> PitotOnlyPolicy:
-    _quadplane(env, "pitot-only", airspeed=True)
-    return PitotOnlyPolicy()
+def _airspeed_policy(cls, name: str):
+    """The factory of a QuadPlaneAutopilot-v0 policy class that takes no arguments."""
+    def factory(env):
+        _quadplane(env, name, airspeed=True)
+        return cls()
+    factory.__doc__ = cls.__doc__.splitlines()[0]
+    return factory
 
 
-def oracle_airspeed(env) -> OracleAirspeedPolicy:
-    _quadplane(env, "oracle-airspeed", airspeed=True)
-    return OracleAirspeedPolicy()
-
-
-def airspeed_switch(env) -> AirspeedSwitchPolicy:
-    _quadplane(env, "airspeed-switch", airspeed=True)
-    return AirspeedSwitchPolicy()
-
-
-def synthetic_only(env) -> SyntheticOnlyPolicy:
-    _quadplane(env, "synthetic-only", airspeed=True)
-    return SyntheticOnlyPolicy()
+pitot_only = _airspeed_policy(PitotOnlyPolicy, "pitot-only")
+oracle_airspeed = _airspeed_policy(OracleAirspeedPolicy, "oracle-airspeed")
+airspeed_switch = _airspeed_policy(AirspeedSwitchPolicy, "airspeed-switch")
+synthetic_only = _airspeed_policy(SyntheticOnlyPolicy, "synthetic-only")
