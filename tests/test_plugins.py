@@ -38,7 +38,9 @@ def assert_detected_and_recovered(results: dict, policy: str) -> None:
 
 
 def test_bench_flies_and_scores_a_module_policy_and_detector_class(tmp_path):
-    results = bench(tmp_path, PLUGIN, "--scenario", "ftcgym_plugin_example.scenario:SCENARIO",
+    modules = tmp_path / "modules"                   # the user's modules, written here and put on PYTHONPATH
+    shutil.copytree(PLUGIN / "ftcgym_plugin_example", modules / "ftcgym_plugin_example")
+    results = bench(tmp_path / "out", modules, "--scenario", "ftcgym_plugin_example.scenario:SCENARIO",
                     "--policy", "ftcgym_plugin_example.policy:SpinOnRotorJump",
                     "--detector", "ftcgym_plugin_example.detector:RotorJumpDetector")
     assert_detected_and_recovered(results, "ftcgym_plugin_example.policy:SpinOnRotorJump")
