@@ -1,4 +1,4 @@
-"""Augmented EKF detector (issue 3, 002): the filter's algebra against closed forms, and 002 Sec. 5.2.
+"""Augmented EKF detector (002): the filter's algebra against closed forms, and 002 Sec. 5.2.
 
 Scenario of 002 Sec. 5.2 on bebop2 hovering with the nominal controller: LOE ramps of 0.1/s capped at 0.5,
 one rotor pair at 5 s and another at 6 s. 002's Qball-X4 flies "+": its pitch pair (front and back

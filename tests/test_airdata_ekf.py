@@ -203,7 +203,7 @@ def test_nan_reading_names_its_key():
 
 
 def test_detector_imports_no_simulator():
-    """DESIGN.md: fdd runs on recorded logs, so the detector module loads neither pybullet nor ftcgym.envs."""
+    """fdd runs on recorded logs (docs/concepts.md), so the detector module loads neither pybullet nor ftcgym.envs."""
     code = ("import sys, ftcgym.fdd.airdata_ekf; "
             "sys.exit(any(k == 'pybullet' or k.startswith('ftcgym.envs') for k in sys.modules))")
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0

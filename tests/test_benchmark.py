@@ -12,7 +12,7 @@ from ftcgym.benchmark.runner import episode_seed, roll_out, run_benchmark, score
 from ftcgym.benchmark.scenarios import get_scenario
 from ftcgym.cli import main
 
-# DESIGN.md's results.json field names, spelled out so a rename shows up here.
+# The results.json field names of docs/concepts.md, spelled out so a rename shows up here.
 DESIGN_EPISODE_FIELDS = [
     "scenario", "policy", "seed", "fault_kind", "fault_target", "fault_onset", "alarm_time",
     "detection_delay", "isolated_target", "isolation_correct", "false_alarm", "recovery_time",

@@ -1,4 +1,4 @@
-"""Detection metrics against hand-computed numbers (DESIGN.md definitions)."""
+"""Detection metrics against hand-computed numbers (the definitions of docs/concepts.md)."""
 import math
 
 import pytest

@@ -1,4 +1,4 @@
-"""Imitation pre-training (issue 7): the task env's shadow expert and DAgger (`ftcgym.training.imitation`)."""
+"""Imitation pre-training: the task env's shadow expert and DAgger (`ftcgym.training.imitation`)."""
 import json
 from pathlib import Path
 

@@ -114,7 +114,7 @@ def test_synthetic_mass_step_is_detected_and_nothing_before(step_time):
 
 @pytest.mark.parametrize("seed", [1000, 1001])
 def test_real_flight_payload_change_alarms_after_onset_only(seed):
-    """004 Sec. 5.1 with heading changes (issue 3's scenario, cut at 50 s): +0.5 kg over 2 s from 40 s.
+    """004 Sec. 5.1 with heading changes (cut at 50 s): +0.5 kg over 2 s from 40 s.
 
     Seeds 1000, 1001 are tuning seeds, so this pins the tuned behaviour, it does not measure it (held-out
     figures: module docstring of `ftcgym.fdd.iv_change`)."""

@@ -1,4 +1,4 @@
-"""The shipped `learned-spin` policy (issue 7): it loads through the benchmark's policy registry, acts
+"""The shipped `learned-spin` policy: it loads through the benchmark's policy registry, acts
 deterministically, carries its manifest, and recovers from a propeller loss on a benchmark episode."""
 import json
 

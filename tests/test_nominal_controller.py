@@ -1,4 +1,4 @@
-"""Nominal controller acceptance (issue 2): hover accuracy, the square task, and that a rotor loss matters."""
+"""Nominal controller acceptance: hover accuracy, the square task, and that a rotor loss matters."""
 import numpy as np
 import pytest
 from conftest import LIGHT_WIND, fly, make_env

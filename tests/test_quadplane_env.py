@@ -1,4 +1,4 @@
-"""QuadPlane-v0 and QuadPlaneAutopilot-v0 (issue 5): the Gymnasium contract, determinism, bad input, the
+"""QuadPlane-v0 and QuadPlaneAutopilot-v0: the Gymnasium contract, determinism, bad input, the
 faults' effect on what the vehicle senses, and the autopilot flying the mission."""
 import math
 import warnings
@@ -29,7 +29,7 @@ def test_check_env_gymnasium_and_sb3(env_id):
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         sb3_check_env(gym.make(env_id, max_episode_seconds=2.0).unwrapped)
-    # DESIGN.md fixes the action spaces (commands in [0, 1] and [-1, 1]; an airspeed in m/s)
+    # The contract (docs/concepts.md) fixes the action spaces (commands in [0, 1] and [-1, 1]; an airspeed in m/s)
     assert [str(w.message) for w in caught if "symmetric and normalized Box" not in str(w.message)] == []
 
 
@@ -129,7 +129,7 @@ def test_oracle_mission_completes_both_transitions_and_tracks_the_cruise_airspee
     assert scores["mission_complete"] and not scores["crashed"]
     assert log.skew.max() > math.radians(85) and log.skew[-1] < math.radians(5)    # out and back
     assert scores["time_forward_flight"] > 40.0 and scores["time_transition"] > 2.0
-    assert scores["cruise_airspeed_rmse"] < 1.0                 # issue 5: < 1 m/s
+    assert scores["cruise_airspeed_rmse"] < 1.0                 # < 1 m/s
     assert scores["airspeed_error_rmse"] < 0.1                  # the oracle feeds the truth
 
 
@@ -209,7 +209,7 @@ def test_policies_refuse_the_wrong_env():
 
 
 def test_trim_cli_prints_hover_and_forward_trims(capsys):
-    """Issue 5: hover with every rotor below 85% of its top speed; forward flight from the stall speed to
+    """Hover with every rotor below 85% of its top speed; forward flight from the stall speed to
     22 m/s with the angle of attack in [0, 10] deg."""
     from ftcgym.cli import main
 

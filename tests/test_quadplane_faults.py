@@ -1,4 +1,4 @@
-"""Quad-plane fault kinds (issue 5): validation, sensor corruption and the propulsion fault profiles."""
+"""Quad-plane fault kinds: validation, sensor corruption and the propulsion fault profiles."""
 import numpy as np
 import pytest
 

@@ -1,4 +1,4 @@
-"""VSQP quad-plane model (issue 5): parameters, aerodynamics, pusher propulsion and trims, against numbers."""
+"""VSQP quad-plane model: parameters, aerodynamics, pusher propulsion and trims, against numbers."""
 from __future__ import annotations
 
 import math
@@ -21,7 +21,7 @@ def forward_speeds():
     return [stall_speed(P)] + [14.0, 16.0, 18.0, 20.0, 22.0]
 
 
-# --- trims (issue 5 acceptance) ---------------------------------------------------------------------------
+# --- trims ---------------------------------------------------------------------------
 
 def test_hover_trim_rotor_speeds_in_001_range_and_below_85_percent():
     row = trim(P, 0.0)

@@ -18,8 +18,8 @@ def test_gymnasium_check_env():
 
 
 def test_sb3_check_env():
-    """SB3's checker passes; its only remark is the advice to use [-1, 1] actions, while DESIGN.md fixes
-    Box(0, 1) rotor commands (training wraps the env with gymnasium's RescaleAction)."""
+    """SB3's checker passes; its only remark is the advice to use [-1, 1] actions, while the contract
+    (docs/concepts.md) fixes Box(0, 1) rotor commands (training wraps the env with gymnasium's RescaleAction)."""
     from stable_baselines3.common.env_checker import check_env as sb3_check_env
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

@@ -1,4 +1,4 @@
-"""Relaxed hover after a propeller loss (issue 4): the equilibrium against 001 Part II App. B's script, its
+"""Relaxed hover after a propeller loss: the equilibrium against 001 Part II App. B's script, its
 limits, and the simulator holding it open loop."""
 import numpy as np
 import pytest

@@ -1,4 +1,4 @@
-"""Spin recovery after a propeller loss (issue 4): the controller, the ftc-spin / oracle-spin policies, and a
+"""Spin recovery after a propeller loss: the controller, the ftc-spin / oracle-spin policies, and a
 full flight: loss, detection, recovery, 10 s of position hold, landing."""
 import numpy as np
 import pytest

@@ -1,4 +1,4 @@
-"""The training pipeline (issue 7): configs, the rotor-loss-recovery task env, a short `ftcgym train` run
+"""The training pipeline: configs, the rotor-loss-recovery task env, a short `ftcgym train` run
 (model, VecNormalize statistics, checkpoints, benchmark evaluations, manifest), `LearnedPolicy` and
 `ftcgym evaluate`. Kept short: a few thousand steps in all."""
 import json

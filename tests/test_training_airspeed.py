@@ -1,4 +1,4 @@
-"""Task airspeed-source (issue 7): the AirspeedSource-v0 env, a short `ftcgym train` run that loads and acts
+"""Task airspeed-source: the AirspeedSource-v0 env, a short `ftcgym train` run that loads and acts
 deterministically as `LearnedAirspeedPolicy`, and the shipped `learned-airspeed` policy."""
 import json
 from pathlib import Path
