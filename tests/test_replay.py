@@ -174,8 +174,8 @@ def test_replay_reports_every_rising_edge_of_the_alarm_in_log_time():
     detector = ToggleDetector([(5.2, 5.3), (5.505, 5.6)])
     result = replay(log, detector)
     assert detector.updates == 100
-    assert result == {"detector": "toggle", "alarms": [{"time": pytest.approx(5.2), "target": 1},
-                                                       {"time": pytest.approx(5.51), "target": 1}],
+    assert result == {"detector": "toggle", "alarms": [{"time": pytest.approx(5.2), "target": 1, "rotor": 1},
+                                                       {"time": pytest.approx(5.51), "target": 1, "rotor": 1}],
                       "final_estimate": [0.0]}
 
 
@@ -235,7 +235,7 @@ def test_replay_of_a_recording_gives_the_online_alarm(recording):
     assert online["alarm"] and online["isolated"] == 2
     log = read_npz(path)
     result = replay(log, make_detector("loe_kalman", log))
-    assert result["alarms"] == [{"time": pytest.approx(online["alarm_time"], abs=log.dt), "target": 2}]
+    assert result["alarms"] == [{"time": pytest.approx(online["alarm_time"], abs=log.dt), "target": 2, "rotor": 2}]
     assert result["final_estimate"] == pytest.approx(online["k_hat"])
 
 
@@ -270,7 +270,8 @@ def test_cli_json_is_exactly_one_object_with_the_replay_fields(recording):
     result = json.loads(done.stdout)
     assert set(result) == {"detector", "alarms", "final_estimate"}
     assert result["detector"] == "loe_kalman"
-    assert [set(alarm) for alarm in result["alarms"]] == [{"time", "target"}]
+    assert [set(alarm) for alarm in result["alarms"]] == [{"time", "target", "rotor"}]
+    assert result["alarms"][0]["rotor"] == result["alarms"][0]["target"]       # an ftcgym recording: same order
     assert result["alarms"][0]["time"] == pytest.approx(info["fdd"]["loe_kalman"]["alarm_time"])
     assert len(result["final_estimate"]) == 4
 
@@ -282,6 +283,7 @@ def test_cli_replays_a_ulog(ulogs):
     assert done.returncode == 0, done.stderr
     result = json.loads(done.stdout)
     assert result["alarms"][0]["target"] == 0
+    assert result["alarms"][0]["rotor"] == 1          # PX4 output 0 is the front-right rotor, ftcgym index 1
     assert 0.0 <= result["alarms"][0]["time"] - ulogs[HIL].fault_time <= 0.15
 
 

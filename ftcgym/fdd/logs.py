@@ -30,6 +30,8 @@ from scipy import signal
 
 FTCGYM_ROTOR_ORDER = "ftcgym / 000 Fig. 2: 0 front-left, 1 front-right, 2 rear-right, 3 rear-left"
 PX4_QUAD_X_ORDER = "PX4 quad X outputs: 0 front-right, 1 rear-left, 2 front-left, 3 rear-right"
+#: actuator order -> the ftcgym rotor index of each of its outputs (docs/concepts.md, "Rotor numbering")
+FTCGYM_INDEX = {FTCGYM_ROTOR_ORDER: (0, 1, 2, 3), PX4_QUAD_X_ORDER: (1, 3, 0, 2)}
 
 PWM_RANGE = (1000.0, 2000.0)       # us, idle..full in the RflyMAD logs (armed outputs span exactly 1000-2000)
 MAX_ROTOR_SPEED = 1000.0           # rad/s at full PWM: ~9500 rpm, a 450-class quad's 10" prop (scale only)

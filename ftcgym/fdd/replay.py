@@ -14,7 +14,7 @@ import numpy as np
 from scipy import signal
 
 from .loe_kalman import SIGNS_000, LoeKalmanDetector, lowpass_coefficients
-from .logs import FTCGYM_ROTOR_ORDER, PX4_QUAD_X_ORDER, FlightLog, read_log
+from .logs import FTCGYM_INDEX, FTCGYM_ROTOR_ORDER, PX4_QUAD_X_ORDER, FlightLog, read_log
 
 #: Sign of each rotor's thrust in [p_dot, q_dot, a_z] (000 eq. 8-9 with the rotor positions of each layout):
 #: a rotor at y < 0 rolls right (+p), at x > 0 pitches up (+q), and every rotor pushes a_z negative.
@@ -41,15 +41,19 @@ ROLL_PITCH_PER_HEAVE = 12.0
 def replay(log: FlightLog, detector) -> dict:
     """Feed `detector` every sample of `log`; report each rising edge of its alarm and its final estimate.
 
-    Times are seconds from the log's start; targets and estimates are in the log's own actuator order.
+    Times are seconds from the log's start; targets and estimates are in the log's own actuator order, and each
+    alarm's `rotor` is its target as an ftcgym rotor index (None where the order or the target is unknown).
     """
     detector.reset()
     alarms, alarmed = [], False
+    to_ftcgym = FTCGYM_INDEX.get(log.actuator_order)
     for time, readings, command in log.samples():
         detector.update(readings, time, command)
         status = detector.status()
         if status["alarm"] and not alarmed:
-            alarms.append({"time": time, "target": status.get("isolated")})
+            target = status.get("isolated")
+            rotor = to_ftcgym[target] if to_ftcgym is not None and isinstance(target, int) else None
+            alarms.append({"time": time, "target": target, "rotor": rotor})
         alarmed = bool(status["alarm"])
     return {"detector": detector.name, "alarms": alarms, "final_estimate": _main_estimate(detector)}
 
@@ -194,10 +198,10 @@ def format_result(result: dict, log: FlightLog) -> str:
              f"rotors: {log.actuator_order}"]
     if log.fault_time is not None:
         lines.append(f"logged fault: rotor {log.fault_target} at {log.fault_time:.3f} s")
-    lines.append(f"{'alarm time [s]':>15}  {'target':>6}  {'after fault [s]':>15}")
+    lines.append(f"{'alarm time [s]':>15}  {'target':>6}  {'ftcgym rotor':>12}  {'after fault [s]':>15}")
     for alarm in result["alarms"]:
         delay = "" if log.fault_time is None else f"{alarm['time'] - log.fault_time:+.3f}"
-        lines.append(f"{alarm['time']:15.3f}  {str(alarm['target']):>6}  {delay:>15}")
+        lines.append(f"{alarm['time']:15.3f}  {str(alarm['target']):>6}  {str(alarm['rotor']):>12}  {delay:>15}")
     if not result["alarms"]:
         lines.append(f"{'(no alarm)':>15}")
     lines.append("final estimate: " + ", ".join(f"{v:.3f}" for v in result["final_estimate"]))
