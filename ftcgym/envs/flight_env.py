@@ -51,6 +51,7 @@ class FlightEnv(gym.Env):
         self.world = PyBulletWorld(self.physics_hz, self.params.mass, self.params.inertia, self.params.body_size,
                                    gui=render_mode == "human")
         self._gravity = np.array([0.0, 0.0, GRAVITY])
+        self._size_body()
 
     def _begin_episode(self, seed, options) -> None:
         """`gym.Env.reset`'s seeding, then this episode's parameters, wind and faults (class docstring)."""
@@ -70,9 +71,13 @@ class FlightEnv(gym.Env):
             self._check_space_bounds(params)
             self.params = params
             self._build_vehicle()
+            self._size_body()
+
+    def _size_body(self) -> None:
+        """The rigid body and the ground-contact check of `self.params` (the world builds the body at reset)."""
+        self.world.set_body(self.params.mass, self.params.inertia, self.params.body_size)
         # Below this altitude the body may touch the ground: 1.5 x half its diagonal (contacts are queried only here).
         self._ground_check_altitude = 0.75 * float(np.linalg.norm(self.params.body_size))
-        self.world.set_body(self.params.mass, self.params.inertia, self.params.body_size)
 
     def _check_space_bounds(self, params) -> None:
         """Per-episode vehicle overrides must keep the observations inside the space fixed at `gym.make`."""
