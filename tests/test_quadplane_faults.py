@@ -4,7 +4,7 @@ import pytest
 
 from ftcgym.models.faults import KINDS, QUADPLANE_KINDS, FaultSchedule, parse_faults, resolve
 
-SENSORS = ("pitot_airspeed", "gnss_velocity", "skew", "pusher_speed", "hover_rotor_speed")
+SENSORS = {"pitot_airspeed": 1, "gnss_velocity": 3, "skew": 1, "pusher_speed": 1, "hover_rotor_speed": 4}
 
 
 def schedule(*specs):
@@ -64,6 +64,6 @@ def test_bad_quadplane_fault_specs_name_the_field():
     with pytest.raises(ValueError, match=r"faults\[0\].rate.*not used"):
         parse_faults([{"kind": "gnss", "rate": 1.0}], 4, SENSORS, QUADPLANE_KINDS)
     with pytest.raises(ValueError, match=r"not a fault kind of this vehicle"):
-        parse_faults([{"kind": "pitot_blockage"}], 4, ("gyro",), KINDS)           # the quadrotor has no pitot
+        parse_faults([{"kind": "pitot_blockage"}], 4, {"gyro": 3}, KINDS)           # the quadrotor has no pitot
     with pytest.raises(ValueError, match=r"not a fault kind of this vehicle"):
         parse_faults([{"kind": "payload"}], 4, SENSORS, QUADPLANE_KINDS)

@@ -3,10 +3,14 @@ step's integration and IMU specific force, crash detection, rendering."""
 from __future__ import annotations
 
 import math
+import os
+import socket
+import sys
 
 import gymnasium as gym
 import numpy as np
 
+from ..models.checks import POSITIVE, Range, number, real_array
 from ..models.constants import GRAVITY
 from ..models.tasks import make_task
 from ..models.wind import DrydenWind
@@ -28,34 +32,63 @@ class FlightEnv(gym.Env):
     RESET_OPTIONS = ("faults", "wind", "vehicle_overrides")
     BOUNDS = 100.0        # m, half-width of the flight box
     CEILING = 100.0       # m
+    MAX_SPEED = 100.0     # m/s, observation bound on velocities
     CRASH_SPEED = 2.0     # m/s, ground contact faster than this is an impact
     CRASH_TILT = np.deg2rad(60.0)   # rad, ground contact more tilted than this is a crash
 
     def _setup(self, vehicle, vehicle_overrides, wind, faults, task, max_episode_seconds, physics_hz, agent_hz,
                render_mode) -> None:
-        """Validate the shared keyword arguments and build the world, task, wind and faults."""
+        """Validate the shared keyword arguments and build the task, wind and faults (`_open_world` follows,
+        once the subclass has validated the rest, so a failed make holds no PyBullet client)."""
+        self.world = None
         self.vehicle = vehicle
         self.params = self._configured_params = self._make_params(vehicle, vehicle_overrides)
-        self.physics_hz, self.agent_hz = _check_rates(physics_hz, agent_hz)
+        self.physics_hz, self.agent_hz = check_rates(physics_hz, agent_hz)
         self.substeps = int(round(self.physics_hz / self.agent_hz))
         self.dt = 1.0 / self.physics_hz
-        if not (np.isfinite(max_episode_seconds) and max_episode_seconds > 0):
-            raise ValueError(f"max_episode_seconds: must be a finite number > 0, got {max_episode_seconds!r}")
-        self.max_episode_seconds = float(max_episode_seconds)
+        self.max_episode_seconds = number(max_episode_seconds, "max_episode_seconds", POSITIVE)
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise ValueError(f"render_mode: {render_mode!r}; accepted: None, {self.metadata['render_modes']}")
         self.render_mode = render_mode
-        self.task = make_task(task)
+        self.task = self._check_task(make_task(task))
         self.wind = self._configured_wind = DrydenWind.from_config(wind, self.dt)
         self.fault_specs = self._configured_faults = self._parse_faults(faults)
-        self.world = PyBulletWorld(self.physics_hz, self.params.mass, self.params.inertia, self.params.body_size,
-                                   gui=render_mode == "human")
+        self._check_payloads(self.params, self.fault_specs)
         self._gravity = np.array([0.0, 0.0, GRAVITY])
+
+    def _open_world(self) -> None:
+        """Connect the PyBullet client (the last step of `__init__`). A window needs a display: without one
+        PyBullet ends the process, so that is checked first and raised as an exception."""
+        if self.render_mode == "human":
+            check_display()
+        self.world = PyBulletWorld(self.physics_hz, self.params.mass, self.params.inertia, self.params.body_size,
+                                   gui=self.render_mode == "human")
         self._size_body()
+
+    def _check_task(self, task):
+        """The task's set-points must lie inside the flight box and the observation bounds."""
+        extent = task.extent()
+        limits = {"horizontal": self.BOUNDS, "altitude": self.CEILING, "speed": self.MAX_SPEED}
+        for key, value in extent.items():
+            if not value <= limits[key]:
+                raise ValueError(f"task: its {key} reaches {value:g}, beyond this env's limit {limits[key]:g} "
+                                 f"({type(task).__name__}; the flight box is |north|, |east| <= {self.BOUNDS:g} m, "
+                                 f"altitude <= {self.CEILING:g} m)")
+        return task
+
+    def _check_payloads(self, params, specs) -> None:
+        """The payload faults (a drop is negative) must keep the mass above zero at every time."""
+        lightest = params.mass + sum(min(s.magnitude, 0.0) for s in specs if s.kind == "payload")
+        if lightest <= 0.0:
+            raise ValueError(f"faults: the payloads take the mass to {lightest:g} kg (vehicle {params.mass:g} kg); "
+                             f"accepted: payload drops that keep the mass > 0")
 
     def _begin_episode(self, seed, options) -> None:
         """`gym.Env.reset`'s seeding, then this episode's parameters, wind and faults (class docstring)."""
+        self._check_open("reset")
         super().reset(seed=seed)
+        if options is not None and not isinstance(options, dict):
+            raise ValueError(f"reset options: expected a dict with keys {list(self.RESET_OPTIONS)}, got {options!r}")
         options = dict(options or {})
         unknown = sorted(set(options) - set(self.RESET_OPTIONS), key=str)
         if unknown:
@@ -65,6 +98,7 @@ class FlightEnv(gym.Env):
                       else self._configured_params)
             self.wind = DrydenWind.from_config(options["wind"], self.dt) if "wind" in options else self._configured_wind
             self.fault_specs = self._parse_faults(options["faults"]) if "faults" in options else self._configured_faults
+            self._check_payloads(params, self.fault_specs)
         except ValueError as error:
             raise ValueError(f"reset options: {error}") from None
         if params is not self.params:
@@ -96,6 +130,7 @@ class FlightEnv(gym.Env):
 
     def _advance(self):
         """Run the physics substeps of one agent step; (observation, terminated, truncated)."""
+        self._check_open("step")
         for _ in range(self.substeps):
             self._physics_step()
         obs = self._observe()
@@ -168,10 +203,14 @@ class FlightEnv(gym.Env):
             self.world.close()
             self.world = None
 
+    def _check_open(self, call: str) -> None:
+        if self.world is None:
+            raise RuntimeError(f"{call}: this env is closed (its PyBullet client is released); make a new one")
+
 
 def check_action(action, low, high, what: str) -> np.ndarray:
-    """`action` as float64 clipped to [low, high]; a wrong shape or a non-finite value raises ValueError."""
-    a = np.asarray(action, dtype=np.float64)
+    """`action` as float64 clipped to [low, high]; a wrong type or shape or a non-finite value raises ValueError."""
+    a = real_array(action, "action", f"real numbers, {what}")
     if a.shape != np.shape(low):
         raise ValueError(f"action: expected shape {np.shape(low)}: {what}; got shape {a.shape}")
     if not np.isfinite(a).all():
@@ -179,11 +218,38 @@ def check_action(action, low, high, what: str) -> np.ndarray:
     return np.minimum(np.maximum(a, low), high)
 
 
-def _check_rates(physics_hz, agent_hz):
-    for name, value in (("physics_hz", physics_hz), ("agent_hz", agent_hz)):
-        if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
-            raise ValueError(f"{name}: must be a finite number > 0, got {value!r}")
+PHYSICS_HZ = Range(50.0, 20_000.0)   # Hz: coarser steps miss the motor lag, finer ones add cost, not accuracy
+MAX_SUBSTEPS = 1000           # physics steps per agent step
+
+
+def check_rates(physics_hz, agent_hz) -> tuple[float, float]:
+    """The physics and agent rates: numbers with physics_hz / agent_hz a whole number of substeps."""
+    physics_hz = number(physics_hz, "physics_hz", PHYSICS_HZ)
+    agent_hz = number(agent_hz, "agent_hz", POSITIVE)
     ratio = physics_hz / agent_hz
-    if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
-        raise ValueError(f"agent_hz: physics_hz / agent_hz must be a whole number >= 1, got {physics_hz}/{agent_hz}")
-    return float(physics_hz), float(agent_hz)
+    if abs(ratio - round(ratio)) > 1e-9 or not 1 <= round(ratio) <= MAX_SUBSTEPS:
+        raise ValueError(f"agent_hz: physics_hz / agent_hz must be a whole number in [1, {MAX_SUBSTEPS}], "
+                         f"got {physics_hz:g}/{agent_hz:g}")
+    return physics_hz, agent_hz
+
+
+def check_display() -> None:
+    """Raise RuntimeError unless an X display answers (PyBullet's GUI exits the process without one)."""
+    if not sys.platform.startswith("linux"):
+        return
+    display = os.environ.get("DISPLAY", "")
+    host, _, number_part = display.rpartition(":")
+    digits = number_part.split(".")[0]
+    if not digits.isdigit():
+        raise RuntimeError(f"render_mode='human': no display (DISPLAY={display!r}); use render_mode='rgb_array', "
+                           f"or run under a display server such as `xvfb-run`")
+    address = (("unix", f"/tmp/.X11-unix/X{digits}") if host in ("", "unix")
+               else ("tcp", (host, 6000 + int(digits))))
+    family = socket.AF_UNIX if address[0] == "unix" else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as probe:
+        probe.settimeout(2.0)
+        try:
+            probe.connect(address[1])
+        except OSError as error:
+            raise RuntimeError(f"render_mode='human': the display {display!r} does not answer ({error}); use "
+                               f"render_mode='rgb_array', or run under a display server such as `xvfb-run`") from None

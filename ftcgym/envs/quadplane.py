@@ -33,17 +33,17 @@ from ..models.geometry import quat_from_euler
 from ..models.pusher import PusherMotor
 from ..models.quadplane_aero import aero_wrench
 from ..models.rotors import RotorSet
-from ..models.sensors import ACCEL_LIMIT, GYRO_LIMIT, QuadPlaneSensorConfig, QuadPlaneSensors
+from ..models.sensors import ACCEL_LIMIT, GYRO_LIMIT, QuadPlaneSensorConfig, QuadPlaneSensors, SensorLimits
 from ..models.vsqp import make_vsqp_params
 from .flight_env import FlightEnv, check_action
 
-SENSOR_KEYS = ("gyro", "accel", "attitude", "position", "velocity", "pitot_airspeed", "gnss_velocity", "skew",
-               "hover_rotor_speed", "pusher_speed", "pusher_current")
+#: the sensors (observation keys) a sensor fault may target, with their sizes
+SENSOR_SIZES = {"gyro": 3, "accel": 3, "attitude": 4, "position": 3, "velocity": 3, "pitot_airspeed": 1,
+                "gnss_velocity": 3, "skew": 1, "hover_rotor_speed": 4, "pusher_speed": 1, "pusher_current": 1}
 ACTION_LOW = np.array([0, 0, 0, 0, 0, -1, -1, -1, 0], dtype=np.float32)
 ACTION_HIGH = np.ones(9, dtype=np.float32)
 ACTION_LAYOUT = "4 hover-rotor commands, pusher throttle, aileron, elevator, rudder, skew command"
 CRASH_PENALTY = 100.0
-MAX_SPEED = 100.0                  # m/s, observation bound on velocities
 SURFACE_TIME_CONSTANT = 0.03       # s, control-surface servo lag (assumed, hobby-grade digital servo)
 #: a motor that lost its propeller spins 30% faster with little inertia, as for the quadrotor (000 Fig. 8)
 UNLOADED_SPEED_RATIO, UNLOADED_TIME_CONSTANT = 1.3, 0.02
@@ -63,15 +63,17 @@ class QuadPlaneEnv(FlightEnv):
                     render_mode)
         self._sensor_config = QuadPlaneSensorConfig.from_overrides(sensors)
         self._surface_alpha = 1.0 - math.exp(-self.dt / SURFACE_TIME_CONSTANT)
+        self.observation_space = self._make_observation_space(self.params)
+        self._limits = {key: (box.low, box.high) for key, box in self.observation_space.spaces.items()}
         self._build_vehicle()
         self.action_space = spaces.Box(ACTION_LOW, ACTION_HIGH, dtype=np.float32)
-        self.observation_space = self._make_observation_space(self.params)
+        self._open_world()
 
     def _make_params(self, vehicle, overrides):
         return make_vsqp_params(vehicle, overrides)
 
     def _parse_faults(self, faults):
-        return parse_faults(faults, 4, SENSOR_KEYS, QUADPLANE_KINDS)
+        return parse_faults(faults, 4, SENSOR_SIZES, QUADPLANE_KINDS)
 
     def _build_vehicle(self) -> None:
         """Hover rotors, pusher, sensors and surface limits of the parameter set `self.params`."""
@@ -82,12 +84,15 @@ class QuadPlaneEnv(FlightEnv):
                                      UNLOADED_SPEED_RATIO, UNLOADED_TIME_CONSTANT)
         self.pusher = PusherMotor(p)
         self._nominal_pusher = {name: getattr(self.pusher, name) for name in ("theta_1", "c_v", "I_0")}
-        self.sensors = QuadPlaneSensors(self._sensor_config, p.hover_omega, 1.0 / self.agent_hz)
+        high = {key: top[0] for key, (_, top) in self._limits.items()}
+        limits = SensorLimits(high["position"], high["velocity"], high["hover_rotor_speed"], high["pusher_speed"],
+                              high["pusher_current"])
+        self.sensors = QuadPlaneSensors(self._sensor_config, p.hover_omega, 1.0 / self.agent_hz, limits)
         self._surface_limit = np.broadcast_to(np.asarray(p.surface_limit, dtype=float), (3,)).copy()
         self._rest_height = 0.5 * float(p.body_size[2])
 
     def _make_observation_space(self, params) -> spaces.Dict:
-        big, fast = 1e4, MAX_SPEED
+        big, fast = 1e4, self.MAX_SPEED
 
         def box(low, high, n):
             return spaces.Box(low, high, (n,), np.float64)
@@ -109,7 +114,7 @@ class QuadPlaneEnv(FlightEnv):
         """Start an episode; `options` may hold `faults`, `wind`, `vehicle_overrides` for it (`FlightEnv`)."""
         self._begin_episode(seed, options)
         rng = self.np_random
-        self._faults = FaultSchedule(resolve(self.fault_specs, rng, 4), 4)
+        self._faults = FaultSchedule(resolve(self.fault_specs, rng, 4, list(SENSOR_SIZES)), 4, self._limits)
         position = np.array([0.0, 0.0, -self._rest_height])
         attitude = quat_from_euler(0.0, 0.0, self._start_heading() + float(rng.uniform(-0.02, 0.02)))
         self._start(position, attitude)

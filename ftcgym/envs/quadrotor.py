@@ -28,14 +28,14 @@ from ..models.faults import FaultSchedule, parse_faults, resolve
 from ..models.geometry import quat_from_euler
 from ..models.quadrotor import YAW_SIGNS, make_params, rotational_drag_moment
 from ..models.rotors import RotorSet
-from ..models.sensors import ACCEL_LIMIT, GYRO_LIMIT, QuadrotorSensors, SensorConfig
+from ..models.sensors import ACCEL_LIMIT, GYRO_LIMIT, QuadrotorSensors, SensorConfig, SensorLimits
 from .flight_env import FlightEnv, check_action
 
-SENSOR_KEYS = ("gyro", "accel", "attitude", "position", "velocity", "rotor_speed")
+#: the sensors (observation keys) a sensor fault may target, with their sizes
+SENSOR_SIZES = {"gyro": 3, "accel": 3, "attitude": 4, "position": 3, "velocity": 3, "rotor_speed": 4}
 BOUNDS = 100.0                    # m, half-width and ceiling of the flight box
 ROTOR_LOW, ROTOR_HIGH = np.zeros(4), np.ones(4)
 CRASH_PENALTY = 100.0
-MAX_SPEED = 100.0                 # m/s, observation bound on velocities (far above any multirotor's)
 
 
 class QuadrotorEnv(FlightEnv):
@@ -50,27 +50,31 @@ class QuadrotorEnv(FlightEnv):
         self._setup(vehicle, vehicle_overrides, wind, faults, task, max_episode_seconds, physics_hz, agent_hz,
                     render_mode)
         self._sensor_config = SensorConfig.from_overrides(sensors)
+        self.observation_space = self._make_observation_space(self.params)
+        self._limits = {key: (box.low, box.high) for key, box in self.observation_space.spaces.items()}
         self._build_vehicle()
         self.action_space = spaces.Box(0.0, 1.0, (4,), np.float32)
-        self.observation_space = self._make_observation_space(self.params)
+        self._open_world()
 
     def _make_params(self, vehicle, overrides):
         return make_params(vehicle, overrides)
 
     def _parse_faults(self, faults):
-        return parse_faults(faults, 4, SENSOR_KEYS)
+        return parse_faults(faults, 4, SENSOR_SIZES)
 
     def _build_vehicle(self) -> None:
         """Rotors, sensors and drag of the parameter set `self.params`."""
         self.rotors = RotorSet.from_params(self.params, YAW_SIGNS)
-        self.sensors = QuadrotorSensors(self._sensor_config, 4, self.params.hover_omega, 1.0 / self.agent_hz)
+        high = {key: top[0] for key, (_, top) in self._limits.items()}
+        limits = SensorLimits(high["position"], high["velocity"], high["rotor_speed"])
+        self.sensors = QuadrotorSensors(self._sensor_config, 4, self.params.hover_omega, 1.0 / self.agent_hz, limits)
         self._body_drag = np.asarray(self.params.body_drag, dtype=float)
         self._rot_drag = (np.asarray(self.params.rotational_drag, dtype=float),   # cached for the physics loop
                           np.asarray(self.params.rotational_drag_quadratic, dtype=float))
 
     # ----------------------------------------------------------------------------------------- spaces
     def _make_observation_space(self, params) -> spaces.Dict:
-        far, fast = 2.0 * BOUNDS, MAX_SPEED  # the crash box bounds position; speed is bounded physically
+        far, fast = 2.0 * BOUNDS, self.MAX_SPEED  # the crash box bounds position; speed is bounded physically
         omega_top = params.omega_max * params.unloaded_speed_ratio * 1.5
 
         def box(low, high, n):
@@ -92,7 +96,7 @@ class QuadrotorEnv(FlightEnv):
         """Start an episode; `options` may hold `faults`, `wind`, `vehicle_overrides` for it (`FlightEnv`)."""
         self._begin_episode(seed, options)
         rng = self.np_random
-        self._faults = FaultSchedule(resolve(self.fault_specs, rng, 4), 4)
+        self._faults = FaultSchedule(resolve(self.fault_specs, rng, 4, list(SENSOR_SIZES)), 4, self._limits)
         self._has_payload = any(s.kind == "payload" for s in self._faults.specs)
         self._mass = self.params.mass
         ref = self.task.reference(0.0)

@@ -10,6 +10,7 @@ import ctypes
 import math
 import os
 import sys
+import weakref
 
 import numpy as np
 
@@ -44,6 +45,8 @@ class PyBulletWorld:
 
     def __init__(self, physics_hz: float, mass: float, inertia, body_size, gui: bool = False):
         self.client = p.connect(p.GUI if gui else p.DIRECT)
+        # Disconnects when the world is collected: an env dropped without close() releases its client.
+        self._release = weakref.finalize(self, _disconnect, self.client)
         self.physics_hz, self.body_size = physics_hz, body_size
         self.mass = mass
         self.inertia = list(inertia)
@@ -124,7 +127,11 @@ class PyBulletWorld:
         return np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[:, :, :3]
 
     def close(self) -> None:
-        if self.client is not None and p.isConnected(self.client):
-            p.disconnect(self.client)
+        self._release()
         self.client = None
+
+
+def _disconnect(client: int) -> None:
+    if p.isConnected(client):
+        p.disconnect(client)
 

@@ -25,12 +25,15 @@ Rotor targets are 0-based indices (0 is 000's r1). "random" as a target draws un
 """
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+
+from .checks import FINITE, POSITIVE, Range, number, numbers
 
 ROTOR_KINDS = ("rotor_loss", "loe")
 SENSOR_KINDS = ("sensor_bias", "sensor_stuck", "sensor_dropout")
@@ -50,6 +53,8 @@ _DEFAULT_MAGNITUDE = {"rotor_loss": 1.0, "loe": 0.5, "payload": 0.5, "sensor_bia
                       **{kind: 1.1 for kind in PROPULSION_KINDS}}   # 003 Sec. IV-A: x1.1
 PROPULSION_RISE_TIME = 50.0   # s, 003 Sec. IV-A
 _FIELDS = ("kind", "target", "time", "magnitude", "rate", "duration")
+_MAGNITUDE_RANGES = {"loe": Range(0.0, 1.0, open_low=True),        # the fraction of effectiveness lost
+                     **{kind: POSITIVE for kind in PROPULSION_KINDS}}   # the parameter's growth factor
 
 
 @dataclass(frozen=True)
@@ -70,19 +75,20 @@ class FaultSpec:
         return d
 
 
-def parse_faults(faults, n_rotors: int, sensor_names: Sequence[str], kinds: Sequence[str] = KINDS) -> list[FaultSpec]:
-    """Validate the env's `faults` kwarg into a list of (possibly unresolved) FaultSpecs; `kinds` are the
-    fault kinds the vehicle accepts (KINDS for the quadrotor, QUADPLANE_KINDS for the quad-plane)."""
+def parse_faults(faults, n_rotors: int, sensors: Mapping[str, int], kinds: Sequence[str] = KINDS) -> list[FaultSpec]:
+    """Validate the env's `faults` kwarg into a list of (possibly unresolved) FaultSpecs. `sensors` maps each
+    observation key a sensor fault may target to its size; `kinds` are the fault kinds the vehicle accepts
+    (KINDS for the quadrotor, QUADPLANE_KINDS for the quad-plane)."""
     if faults is None:
         return []
     if isinstance(faults, (str, dict, FaultSpec)):
         faults = [faults]
     if not isinstance(faults, (list, tuple)):
         raise ValueError(f"faults: expected a list of fault dicts, a FaultSpec or 'random:<kind>', got {faults!r}")
-    return [_parse_one(f, i, n_rotors, sensor_names, tuple(kinds)) for i, f in enumerate(faults)]
+    return [_parse_one(f, i, n_rotors, sensors, tuple(kinds)) for i, f in enumerate(faults)]
 
 
-def _parse_one(spec, index: int, n_rotors: int, sensor_names, kinds) -> FaultSpec:
+def _parse_one(spec, index: int, n_rotors: int, sensors, kinds) -> FaultSpec:
     where = f"faults[{index}]"
     if isinstance(spec, str):
         prefix, _, kind = spec.partition(":")
@@ -94,37 +100,41 @@ def _parse_one(spec, index: int, n_rotors: int, sensor_names, kinds) -> FaultSpe
         spec = spec.to_dict()
     if not isinstance(spec, dict):
         raise ValueError(f"{where}: expected a dict with keys {list(_FIELDS)}, got {type(spec).__name__}")
-    unknown = set(spec) - set(_FIELDS)
+    unknown = sorted(set(spec) - set(_FIELDS), key=str)
     if unknown:
-        raise ValueError(f"{where}: unknown key(s) {sorted(unknown)}; accepted: {list(_FIELDS)}")
+        raise ValueError(f"{where}: unknown key(s) {unknown}; accepted: {list(_FIELDS)}")
     kind = spec.get("kind")
-    if kind not in kinds:
+    if not isinstance(kind, str) or kind not in kinds:
         raise ValueError(f"{where}.kind: {kind!r} is not a fault kind of this vehicle; accepted: {list(kinds)}")
     duration = spec.get("duration", PROPULSION_RISE_TIME if kind in PROPULSION_KINDS else None)
+    target = _check_target(kind, spec.get("target"), f"{where}.target", n_rotors, sensors)
+    size = sensors.get(target, 1) if kind == "sensor_bias" and target != "random" else 1
     return FaultSpec(
         kind=kind,
-        target=_check_target(kind, spec.get("target"), f"{where}.target", n_rotors, sensor_names),
+        target=target,
         time=_check_time(spec.get("time", 0.0), f"{where}.time"),
-        magnitude=_check_magnitude(kind, spec.get("magnitude", _DEFAULT_MAGNITUDE[kind]), f"{where}.magnitude"),
+        magnitude=_check_magnitude(kind, spec.get("magnitude", _DEFAULT_MAGNITUDE[kind]), f"{where}.magnitude",
+                                   size),
         rate=_check_positive(spec.get("rate"), f"{where}.rate", kind in ("loe", "pitot_blockage")),
         duration=_check_positive(duration, f"{where}.duration",
                                  kind not in ROTOR_KINDS + ("pitot_blockage",)),
     )
 
 
-def _check_target(kind, target, where, n_rotors, sensor_names):
+def _check_target(kind, target, where, n_rotors, sensors):
     if kind in ROTOR_KINDS:
-        if target == "random":
+        if isinstance(target, str) and target == "random":
             return target
         targets = target if isinstance(target, (list, tuple)) and kind == "loe" else [target]
         ok = all(isinstance(t, (int, np.integer)) and not isinstance(t, bool) and 0 <= t < n_rotors for t in targets)
-        if not ok or not targets:
-            accepted = f"a rotor index 0..{n_rotors - 1}, 'random'" + (" or a list of indices" if kind == "loe" else "")
+        if not ok or not targets or len(set(targets)) < len(targets):
+            accepted = (f"a rotor index 0..{n_rotors - 1}, 'random'"
+                        + (" or a list of distinct indices" if kind == "loe" else ""))
             raise ValueError(f"{where}: {target!r} is not accepted for {kind}; accepted: {accepted}")
         return tuple(int(t) for t in targets) if kind == "loe" else int(target)
     if kind in SENSOR_KINDS:
-        if target not in sensor_names:
-            raise ValueError(f"{where}: {target!r} is not a sensor; accepted: {list(sensor_names)}")
+        if not isinstance(target, str) or target not in (*sensors, "random"):
+            raise ValueError(f"{where}: {target!r} is not a sensor; accepted: {[*sensors, 'random']}")
         return target
     if kind == "pitot_blockage":
         if target not in (None,) + PITOT_MODES:
@@ -145,21 +155,22 @@ def _check_time(time, where):
     return float(time)
 
 
-def _check_magnitude(kind, magnitude, where):
+def _check_magnitude(kind, magnitude, where, size: int):
+    """The magnitude a kind accepts: none for the kinds without one (skew_sensor: optional), a number or one
+    per element of the channel for sensor_bias, exactly 1 for rotor_loss."""
     if magnitude is None:
+        if _DEFAULT_MAGNITUDE[kind] is not None:
+            raise ValueError(f"{where}: {kind} needs a magnitude (default {_DEFAULT_MAGNITUDE[kind]}); got None")
         return None
-    if kind in ("sensor_bias", "skew_sensor"):
-        arr = np.asarray(magnitude, dtype=float)
-        if not np.all(np.isfinite(arr)):
-            raise ValueError(f"{where}: must be finite, got {magnitude!r}")
-        return float(arr) if arr.ndim == 0 else tuple(arr.tolist())
-    if not _finite(magnitude):
-        raise ValueError(f"{where}: must be a finite number, got {magnitude!r}")
-    if kind in ROTOR_KINDS and not 0 < magnitude <= 1:
-        raise ValueError(f"{where}: the fraction of effectiveness lost must be in (0, 1], got {magnitude!r}")
-    if kind in PROPULSION_KINDS and magnitude <= 0:
-        raise ValueError(f"{where}: the parameter's growth factor must be > 0, got {magnitude!r}")
-    return float(magnitude)
+    if _DEFAULT_MAGNITUDE[kind] is None and kind != "skew_sensor":
+        raise ValueError(f"{where}: {kind} takes no magnitude; leave it out (got {magnitude!r})")
+    if kind == "sensor_bias" and np.ndim(magnitude) > 0:
+        return tuple(numbers(magnitude, where, (size,)).tolist())
+    value = number(magnitude, where, _MAGNITUDE_RANGES.get(kind, FINITE))
+    if kind == "rotor_loss" and value != 1.0:
+        raise ValueError(f"{where}: rotor_loss is a total loss, so its magnitude is 1 (leave it out); "
+                         f"for a partial loss use kind 'loe'; got {magnitude!r}")
+    return value
 
 
 def _check_positive(value, where, allowed):
@@ -167,21 +178,22 @@ def _check_positive(value, where, allowed):
         return None
     if not allowed:
         raise ValueError(f"{where}: not used by this fault kind; leave it out")
-    if not _finite(value) or value <= 0:
-        raise ValueError(f"{where}: must be a finite number > 0, got {value!r}")
-    return float(value)
+    return number(value, where, POSITIVE)
 
 
 def _finite(x) -> bool:
     return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, bool) and bool(np.isfinite(x))
 
 
-def resolve(specs: list[FaultSpec], rng: np.random.Generator, n_rotors: int) -> list[FaultSpec]:
-    """Draw every random target and onset from the env's RNG."""
+def resolve(specs: list[FaultSpec], rng: np.random.Generator, n_rotors: int,
+            sensors: Sequence[str] = ()) -> list[FaultSpec]:
+    """Draw every random target (a rotor, or one of `sensors` for a sensor fault) and onset from the env's RNG."""
     out = []
     for s in specs:
         target, time = s.target, s.time
-        if target == "random":
+        if target == "random" and s.kind in SENSOR_KINDS:
+            target = sensors[int(rng.integers(len(sensors)))]
+        elif target == "random":
             target = int(rng.integers(n_rotors))
             if s.kind == "loe":
                 target = (target,)
@@ -194,8 +206,10 @@ def resolve(specs: list[FaultSpec], rng: np.random.Generator, n_rotors: int) -> 
 class FaultSchedule:
     """The resolved faults of one episode and what they do at time t."""
 
-    def __init__(self, specs: list[FaultSpec], n_rotors: int):
+    def __init__(self, specs: list[FaultSpec], n_rotors: int, limits: Mapping[str, tuple] | None = None):
+        """`limits` maps an observation key to its (low, high) bounds: a biased reading saturates there."""
         self.specs = sorted(specs, key=lambda s: s.time)
+        self._limits = dict(limits or {})
         self.n_rotors = n_rotors
         self._rotor = [s for s in self.specs if s.kind in ROTOR_KINDS]
         self._payload = [s for s in self.specs if s.kind == "payload"]
@@ -205,7 +219,8 @@ class FaultSchedule:
         self.has_propulsion_faults = bool(self._propulsion)
         self._stuck: dict[int, np.ndarray] = {}
         self._dicts = [s.to_dict() for s in self.specs]
-        self._onsets = [s.time for s in self.specs]
+        ends = [s.time + s.duration for s in self.specs if _ends(s)]
+        self._changes = sorted({s.time for s in self.specs} | set(ends))   # times at which info["fault"] changes
         self._current_start, self._current_until = np.inf, -np.inf  # the cached info["fault"] holds in between
 
     def rotor_state(self, t: float, effectiveness: np.ndarray, loaded: np.ndarray) -> None:
@@ -238,7 +253,8 @@ class FaultSchedule:
                 continue
             value = readings[s.target]
             if s.kind == "sensor_bias":
-                readings[s.target] = value + np.asarray(s.magnitude)
+                low, high = self._limits.get(s.target, (-np.inf, np.inf))
+                readings[s.target] = np.minimum(np.maximum(value + np.asarray(s.magnitude), low), high)
             elif s.kind == "sensor_dropout":
                 readings[s.target] = np.zeros_like(value)
             else:
@@ -270,19 +286,21 @@ class FaultSchedule:
         return factors
 
     def current(self, t: float) -> dict:
-        """info["fault"]: the latest fault in force at t, else the next scheduled one (inactive); a fresh dict."""
+        """info["fault"]: the latest fault acting at t (active); else the latest that has ended (inactive, with
+        its onset); else the next scheduled one (inactive, onset None); a fresh dict."""
         if not self._current_start <= t < self._current_until:
-            n_active = sum(1 for onset in self._onsets if onset <= t)
-            self._current_start = self._onsets[n_active - 1] if n_active else -np.inf
-            self._current_until = self._onsets[n_active] if n_active < len(self._onsets) else np.inf
+            index = bisect.bisect_right(self._changes, t)
+            self._current_start = self._changes[index - 1] if index else -np.inf
+            self._current_until = self._changes[index] if index < len(self._changes) else np.inf
             self._current = self._describe(t)
         return dict(self._current)
 
     def _describe(self, t: float) -> dict:
-        active = [s for s in self.specs if s.time <= t]
-        if active:
-            s = active[-1]
-            return {"active": True, "kind": s.kind, "target": _public(s.target), "onset_time": s.time,
+        started = [s for s in self.specs if s.time <= t]
+        acting = [s for s in started if not _ended(s, t)]
+        if started:
+            s = (acting or started)[-1]
+            return {"active": bool(acting), "kind": s.kind, "target": _public(s.target), "onset_time": s.time,
                     "magnitude": _public(s.magnitude)}
         if self.specs:
             s = self.specs[0]
@@ -293,6 +311,15 @@ class FaultSchedule:
     def as_dicts(self) -> list[dict]:
         """info["faults"]: the resolved schedule (fresh dicts)."""
         return [dict(d) for d in self._dicts]
+
+
+def _ends(spec: FaultSpec) -> bool:
+    """A sensor fault with a duration ends (a payload's duration is its ramp: it stays)."""
+    return spec.duration is not None and spec.kind in SENSOR_KINDS + tuple(NAMED_SENSOR_FAULTS)
+
+
+def _ended(spec: FaultSpec, t: float) -> bool:
+    return _ends(spec) and t >= spec.time + spec.duration
 
 
 def _as_sensor_fault(spec: FaultSpec) -> FaultSpec:

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .checks import NON_NEGATIVE, POSITIVE, Range, numbers
 from .constants import GRAVITY
 
 #: yaw reaction-torque sign per rotor (004 eq. 7; docs/concepts.md, 'Rotor numbering'): + means +z (FRD)
@@ -143,35 +144,47 @@ MUELLER2014 = QuadrotorParams(
 
 VEHICLES = {p.name: p for p in (BEBOP2, MUELLER2014)}
 
+#: the values each field accepts (`vehicle_overrides` are checked against them; a built-in set satisfies them)
+QUADROTOR_RANGES = {
+    "mass": POSITIVE, "inertia": POSITIVE, "arm_x": POSITIVE, "arm_y": POSITIVE,
+    "thrust_coefficient": POSITIVE, "torque_coefficient": NON_NEGATIVE,
+    "omega_min": NON_NEGATIVE, "omega_max": POSITIVE, "motor_time_constant": POSITIVE,
+    "max_rotor_acceleration": POSITIVE, "propeller_radius": POSITIVE, "propeller_inertia": NON_NEGATIVE,
+    "rotor_drag_coefficient": NON_NEGATIVE, "body_drag": NON_NEGATIVE, "rotational_drag": NON_NEGATIVE,
+    "unloaded_speed_ratio": Range(1.0),    # a motor that lost its propeller does not slow down (000 Fig. 8)
+    "unloaded_time_constant": POSITIVE, "body_size": POSITIVE, "rotational_drag_quadratic": NON_NEGATIVE,
+}
+#: rules between fields: (holds(params), the rule as the error states it)
+QUADROTOR_RELATIONS = (
+    (lambda p: p.omega_min < p.omega_max, "omega_min must be below omega_max"),
+)
+
 
 def make_params(vehicle: str, overrides: dict | None = None) -> QuadrotorParams:
     """The named parameter set with `overrides` applied; unknown names raise ValueError."""
-    return named_params(VEHICLES, vehicle, overrides)
+    return named_params(VEHICLES, vehicle, overrides, QUADROTOR_RANGES, QUADROTOR_RELATIONS)
 
 
-def named_params(catalogue: dict, vehicle: str, overrides: dict | None = None):
-    """`catalogue[vehicle]` (a frozen dataclass) with `overrides` applied; a bad name, field, value or shape
-    raises ValueError naming it and what is accepted."""
-    if vehicle not in catalogue:
+def named_params(catalogue: dict, vehicle: str, overrides: dict | None, ranges: dict, relations=()):
+    """`catalogue[vehicle]` (a frozen dataclass) with `overrides` applied. Each override must be real numbers
+    of its field's shape inside `ranges[field]`, and the result must satisfy every `(holds, rule)` of
+    `relations`; otherwise ValueError names the field, the value and what is accepted."""
+    if not isinstance(vehicle, str) or vehicle not in catalogue:
         raise ValueError(f"vehicle: unknown parameter set {vehicle!r}; accepted: {sorted(catalogue)}")
     params = catalogue[vehicle]
     if not overrides:
         return params
-    fields = {f.name for f in dataclasses.fields(params)} - {"name", "sources"}
-    unknown = set(overrides) - fields
+    if not isinstance(overrides, dict):
+        raise ValueError(f"vehicle_overrides: expected a dict of field -> value, got {overrides!r}")
+    unknown = sorted(set(overrides) - set(ranges), key=str)
     if unknown:
-        raise ValueError(f"vehicle_overrides: unknown field(s) {sorted(unknown)}; accepted: {sorted(fields)}")
+        raise ValueError(f"vehicle_overrides: unknown field(s) {unknown}; accepted: {sorted(ranges)}")
     clean = {}
     for key, value in overrides.items():
-        try:
-            arr = np.asarray(value, dtype=float)
-        except (TypeError, ValueError):
-            raise ValueError(f"vehicle_overrides[{key!r}]: must be a number or a list of numbers, "
-                             f"got {value!r}") from None
-        if not np.all(np.isfinite(arr)):
-            raise ValueError(f"vehicle_overrides[{key!r}]: must be finite, got {value!r}")
-        expected = np.shape(getattr(params, key))
-        if arr.shape != expected:
-            raise ValueError(f"vehicle_overrides[{key!r}]: expected shape {expected}, got {arr.shape}")
+        arr = numbers(value, f"vehicle_overrides[{key!r}]", np.shape(getattr(params, key)), ranges[key])
         clean[key] = tuple(arr.tolist()) if arr.ndim else float(arr)
-    return dataclasses.replace(params, **clean)
+    params = dataclasses.replace(params, **clean)
+    for holds, rule in relations:
+        if not holds(params):
+            raise ValueError(f"vehicle_overrides: {rule} (with {clean})")
+    return params

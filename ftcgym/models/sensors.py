@@ -16,11 +16,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .checks import Range, number
 from .constants import GRAVITY
 
 GYRO_LIMIT = np.deg2rad(2000.0)   # rad/s, MPU-6050 full scale (000 Fig. 5)
 ACCEL_LIMIT = 16.0 * GRAVITY        # m/s^2, +-16 g full scale
 _BLOCK = 512
+# Accepted sensor settings: noise levels and time constants may be 0 (an ideal sensor), rates may not; the
+# upper ends only keep the arithmetic finite (no real sensor comes near them).
+_LEVEL, _RATE = Range(0.0, 1e6), Range(1e-3, 1e6)
 
 
 @dataclass(frozen=True)
@@ -43,24 +47,35 @@ class SensorConfig:
     def from_overrides(cls, overrides: dict | None) -> SensorConfig:
         if not overrides:
             return cls()
+        if not isinstance(overrides, dict):
+            raise ValueError(f"sensors: expected a dict of field -> value, got {overrides!r}")
         names = {f.name for f in dataclasses.fields(cls)}
-        unknown = set(overrides) - names
+        unknown = sorted(set(overrides) - names, key=str)
         if unknown:
-            raise ValueError(f"sensors: unknown field(s) {sorted(unknown)}; accepted: {sorted(names)}")
-        for key, value in overrides.items():
-            if not (np.isfinite(value) and value >= 0):
-                raise ValueError(f"sensors[{key!r}]: must be a finite number >= 0, got {value!r}")
-        if overrides.get("position_hz", 1.0) <= 0:
-            raise ValueError("sensors['position_hz']: must be > 0")
-        return cls(**{k: float(v) for k, v in overrides.items()})
+            raise ValueError(f"sensors: unknown field(s) {unknown}; accepted: {sorted(names)}")
+        return cls(**{k: number(v, f"sensors[{k!r}]", _RATE if k.endswith("_hz") else _LEVEL)
+                      for k, v in overrides.items()})
+
+
+@dataclass(frozen=True)
+class SensorLimits:
+    """Full-scale ranges (symmetric, +-): a reading saturates there, at the observation space's bounds."""
+
+    position: float = np.inf        # m
+    velocity: float = np.inf        # m/s (also the pitot's and the GNSS velocity's)
+    rotor_speed: float = np.inf     # rad/s
+    pusher_speed: float = np.inf    # rad/s
+    pusher_current: float = np.inf  # A
 
 
 class QuadrotorSensors:
     """IMU, ESC, attitude and position/velocity sensors of a quadrotor."""
 
     #: columns of one noise row: gyro 3, accel 3, attitude 3, position 3, velocity 3, rotor speeds n
-    def __init__(self, config: SensorConfig, n_rotors: int, hover_omega: float, dt: float):
+    def __init__(self, config: SensorConfig, n_rotors: int, hover_omega: float, dt: float,
+                 limits: SensorLimits | None = None):
         self.config = config
+        self.limits = limits or SensorLimits()
         self.n_rotors = n_rotors
         self.dt = dt
         self._omega_ref2 = hover_omega ** 2
@@ -106,8 +121,8 @@ class QuadrotorSensors:
         gyro = body_rates + self.gyro_bias + n[0:3] + vib @ self._gyro_vib_dirs
         accel = specific_force + self.accel_bias + n[3:6] + vib @ self._accel_vib_dirs
         if self._count % self._hold_steps == 0:
-            self._position = position + n[9:12]
-            self._velocity = velocity + n[12:15]
+            self._position = _saturate(position + n[9:12], self.limits.position)
+            self._velocity = _saturate(velocity + n[12:15], self.limits.velocity)
         self._count += 1
         return {
             "gyro": np.minimum(np.maximum(gyro, -GYRO_LIMIT), GYRO_LIMIT),
@@ -115,8 +130,12 @@ class QuadrotorSensors:
             "attitude": _perturb(quat, n[6:9]),
             "position": self._position.copy(),
             "velocity": self._velocity.copy(),
-            "rotor_speed": np.maximum(omega + n[15:], 0.0),
+            "rotor_speed": np.minimum(np.maximum(omega + n[15:], 0.0), self.limits.rotor_speed),
         }
+
+
+def _saturate(x: np.ndarray, limit: float) -> np.ndarray:
+    return np.minimum(np.maximum(x, -limit), limit)
 
 
 def _perturb(q, half_angles) -> np.ndarray:
@@ -156,9 +175,11 @@ class QuadPlaneSensors:
     plus pitot airspeed (noise and first-order lag), GNSS velocity (sample-and-hold), skew angle and the
     pusher's speed and current."""
 
-    def __init__(self, config: QuadPlaneSensorConfig, hover_omega: float, agent_dt: float):
+    def __init__(self, config: QuadPlaneSensorConfig, hover_omega: float, agent_dt: float,
+                 limits: SensorLimits | None = None):
         self.config = config
-        self.base = QuadrotorSensors(config, 4, hover_omega, agent_dt)
+        self.limits = limits = limits or SensorLimits()
+        self.base = QuadrotorSensors(config, 4, hover_omega, agent_dt, limits)
         self._pitot_alpha = 1.0 - np.exp(-agent_dt / config.pitot_time_constant) if config.pitot_time_constant else 1.0
         self._gnss_steps = max(1, int(round(1.0 / (config.gnss_hz * agent_dt))))
         c = config
@@ -183,15 +204,16 @@ class QuadPlaneSensors:
         n = self._rng.standard_normal(7) * self._scales
         self._pitot += self._pitot_alpha * (max(airspeed_x, 0.0) - self._pitot)   # a pitot reads forward flow only
         if self._count % self._gnss_steps == 0:
-            self._gnss = velocity + n[1:4]
+            self._gnss = _saturate(velocity + n[1:4], self.limits.velocity)
         self._count += 1
+        lim = self.limits
         return {
             "gyro": common["gyro"], "accel": common["accel"], "attitude": common["attitude"],
             "position": common["position"], "velocity": common["velocity"],
-            "pitot_airspeed": np.array([max(self._pitot + n[0], 0.0)]),
+            "pitot_airspeed": np.array([min(max(self._pitot + n[0], 0.0), lim.velocity)]),
             "gnss_velocity": self._gnss.copy(),
-            "skew": np.array([skew + n[4]]),
+            "skew": np.array([min(max(skew + n[4], -np.pi), np.pi)]),
             "hover_rotor_speed": common["rotor_speed"],
-            "pusher_speed": np.array([max(pusher_omega + n[5], 0.0)]),
-            "pusher_current": np.array([pusher_current + n[6]]),
+            "pusher_speed": np.array([min(max(pusher_omega + n[5], 0.0), lim.pusher_speed)]),
+            "pusher_current": np.array([min(max(pusher_current + n[6], -lim.pusher_current), lim.pusher_current)]),
         }

@@ -17,9 +17,12 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from .checks import FINITE, NON_NEGATIVE, POSITIVE, Range, number
+
 # 004 Sec. 5.1 excitation as sums of sines: sin(a t) cos(b t) = (sin((a+b)t) + sin((a-b)t)) / 2.
 _EXCITATION_PAIRS = ((2.51, 3.14), (3.14, 4.19), (4.19, 6.28))
 _EXCITATION_FREQS = np.array([f for a, b in _EXCITATION_PAIRS for f in (a + b, a - b)])
+EXCITATION_PEAK = 0.25 * len(_EXCITATION_FREQS)   # m/s, bound of |excitation_speed|
 
 
 def excitation_speed(t: float) -> float:
@@ -51,6 +54,10 @@ class HoverTask:
 
     def reference(self, t: float) -> Reference:
         return Reference(np.array([self.north, self.east, -self.altitude]), np.zeros(3), self.yaw)
+
+    def extent(self) -> dict:
+        """The farthest set-point from home (|north| or |east|), the highest altitude and the fastest speed."""
+        return {"horizontal": max(abs(self.north), abs(self.east)), "altitude": self.altitude, "speed": 0.0}
 
 
 @dataclass(frozen=True)
@@ -85,6 +92,11 @@ class SquareTask:
         yaw = (yaw + np.pi) % (2 * np.pi) - np.pi
         return Reference(np.array([north, east, -self.altitude]), np.array([*(v * direction), 0.0]), yaw)
 
+    def extent(self) -> dict:
+        """As `HoverTask.extent`; the excitation adds at most 1.5 m/s (the sum of its amplitudes)."""
+        return {"horizontal": self.side, "altitude": self.altitude,
+                "speed": self.speed + (EXCITATION_PEAK if self.excitation else 0.0)}
+
 
 @dataclass(frozen=True)
 class MissionTask:
@@ -106,6 +118,11 @@ class MissionTask:
     def reference(self, t: float) -> Reference:
         return Reference(np.array([0.0, 0.0, -self.altitude]), np.zeros(3), 0.0)
 
+    def extent(self) -> dict:
+        """As `HoverTask.extent`: the circle through home spans two radii from it."""
+        return {"horizontal": 2.0 * self.circuit_radius, "altitude": self.altitude,
+                "speed": max(self.cruise_airspeed, self.climb_rate, self.descent_rate)}
+
 
 TASKS = {"hover": HoverTask, "square": SquareTask, "mission": MissionTask}
 
@@ -118,7 +135,7 @@ def make_task(task) -> HoverTask | SquareTask | MissionTask:
     if isinstance(task, dict):
         options = dict(task)
         task = options.pop("name", None)
-    if task not in TASKS:
+    if not isinstance(task, str) or task not in TASKS:
         raise ValueError(f"task: unknown task {task!r}; accepted: {sorted(TASKS)} (or a dict with 'name')")
     cls = TASKS[task]
     accepted = {f.name for f in fields(cls)}
@@ -126,9 +143,17 @@ def make_task(task) -> HoverTask | SquareTask | MissionTask:
     if unknown:
         raise ValueError(f"task: unknown option(s) {sorted(unknown)} for {task!r}; accepted: {sorted(accepted)}")
     for key, value in options.items():
-        if not isinstance(value, bool) and not (isinstance(value, (int, float)) and np.isfinite(value)):
-            raise ValueError(f"task[{key!r}]: must be a finite number or a bool, got {value!r}")
-    for key in ("altitude", "side", "speed", "cruise_airspeed", "circuit_radius", "laps", "climb_rate", "descent_rate"):
-        if options.get(key, 1.0) <= 0:
-            raise ValueError(f"task[{key!r}]: must be > 0, got {options[key]!r}")
+        if isinstance(getattr(cls, key, None), bool):
+            if not isinstance(value, bool):
+                raise ValueError(f"task[{key!r}]: expected True or False, got {value!r}")
+        else:
+            options[key] = number(value, f"task[{key!r}]", _TASK_RANGES.get(key, FINITE))
     return cls(**options)
+
+
+#: accepted values of the task options (others: any finite number)
+_TASK_RANGES = {
+    **{key: POSITIVE for key in ("altitude", "side", "speed", "cruise_airspeed", "circuit_radius", "laps",
+                                 "climb_rate", "descent_rate")},
+    "hold": NON_NEGATIVE, "hover_time": NON_NEGATIVE, "yaw": Range(-np.pi, np.pi),
+}

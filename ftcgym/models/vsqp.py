@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .checks import FINITE, NON_NEGATIVE, POSITIVE, Range
 from .constants import GRAVITY
 from .quadrotor import named_params
 
@@ -240,7 +241,42 @@ VSQP = VsqpParams(
 
 QUADPLANE_VEHICLES = {VSQP.name: VSQP}
 
+_SIGN = Range(-1.0, 1.0)                       # with the relation below: exactly -1 or +1
+_ANGLE = Range(-math.pi / 2, math.pi / 2, open_low=True, open_high=True)
+#: the values each field accepts (`vehicle_overrides` are checked against them; the built-in set satisfies them)
+VSQP_RANGES = {
+    **{name: POSITIVE for name in (
+        "mass", "inertia", "air_density", "hover_thrust_coefficient", "hover_omega_max", "hover_time_constant",
+        "hover_max_acceleration", "hover_fuselage_arm", "hover_wing_arm", "hover_propeller_diameter",
+        "pusher_diameter", "pusher_inertia", "pusher_motor_constant", "pusher_resistance", "pusher_icing",
+        "battery_voltage", "pusher_max_current", "pusher_omega_max", "wing_area", "wing_span", "wing_chord",
+        "wing_cl_alpha", "stall_blend", "tail_arm", "htail_span", "htail_alpha_stall", "vtail_height",
+        "skew_rate_limit", "transition_end_speed", "body_size")},
+    **{name: NON_NEGATIVE for name in (
+        "hover_torque_coefficient", "hover_omega_min", "propeller_inertia", "hover_drag_coefficient",
+        "pusher_zero_load_current", "pusher_viscous_friction", "wing_cd0", "wing_cn90", "wing_spanwise_friction",
+        "fuselage_drag_area", "htail_area", "htail_cl_alpha", "vtail_area", "vtail_cl_alpha", "tail_cd0",
+        "tail_cn90", "transition_start_speed")},
+    **{name: FINITE for name in (
+        "hover_rotor_height", "pusher_thrust_coefficients", "pusher_thrust_k3", "pusher_torque_coefficients",
+        "wing_cl0", "wing_cm0", "wing_ac_offset", "wing_roll_damping", "rudder_effectiveness",
+        "aileron_roll_coefficient")},
+    "hover_yaw_signs": _SIGN, "pusher_spin_direction": _SIGN,
+    "hover_tilt": _ANGLE, "wing_incidence": _ANGLE, "wing_alpha_stall": _ANGLE,
+    "wing_oswald": Range(0.0, 1.0, open_low=True),
+    "surface_limit": Range(0.0, math.pi / 2, open_low=True, open_high=True),
+}
+#: rules between fields: (holds(params), the rule as the error states it)
+VSQP_RELATIONS = (
+    (lambda p: p.hover_omega_min < p.hover_omega_max, "hover_omega_min must be below hover_omega_max"),
+    (lambda p: all(abs(s) == 1.0 for s in (*p.hover_yaw_signs, p.pusher_spin_direction)),
+     "hover_yaw_signs and pusher_spin_direction must each be -1 or +1"),
+    (lambda p: p.wing_alpha_stall[1] < 0.0 < p.wing_alpha_stall[0], "wing_alpha_stall must be (positive, negative)"),
+    (lambda p: p.transition_start_speed < p.transition_end_speed,
+     "transition_start_speed must be below transition_end_speed"),
+)
+
 
 def make_vsqp_params(vehicle: str = "vsqp", overrides: dict | None = None) -> VsqpParams:
     """The named quad-plane parameter set with `overrides` applied (as `vehicles.make_params`)."""
-    return named_params(QUADPLANE_VEHICLES, vehicle, overrides)
+    return named_params(QUADPLANE_VEHICLES, vehicle, overrides, VSQP_RANGES, VSQP_RELATIONS)

@@ -34,6 +34,8 @@ import math
 import numpy as np
 import scipy.linalg
 
+from .checks import FINITE, POSITIVE, Range, number, numbers
+
 # 004 Sec. 5.1 ("low altitude and light turbulence", h = 8 m). "moderate" and "severe" are our
 # choice: light sigmas times 2 and 4, lengths kept (MIL-F-8785C's low-altitude model scales all
 # sigmas with the 20-ft wind, 15/30/45 kt for light/moderate/severe, i.e. 1:2:3, so our "severe"
@@ -53,24 +55,18 @@ _BLOCK = 1024          # noise steps drawn per refill: amortises the rng/matmul 
 _CALM_HORIZONTAL = 1e-9  # m/s; below this the mean wind has no direction and u points north
 
 
-def _vector3(value, field: str) -> np.ndarray:
-    try:
-        arr = np.array(value, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError):
-        raise ValueError(f"wind {field}: expected 3 finite numbers, got {value!r}") from None
-    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
-        raise ValueError(f"wind {field}: expected 3 finite numbers, got {value!r}")
-    return arr
+MAX_MEAN_WIND = 50.0                     # m/s, above a category-3 hurricane's sustained wind
+_SIGMAS = Range(0.0, 20.0)               # m/s; MIL-F-8785C's severe turbulence stays below 10
+_LENGTHS = Range(1.0, 1e5)               # m
+_AIRSPEED = Range(0.0, 200.0, open_low=True)   # m/s, the airspeed that scales the turbulence
 
 
-def _positive(value, field: str) -> float:
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"wind {field}: expected a finite number > 0, got {value!r}") from None
-    if not (math.isfinite(number) and number > 0.0):
-        raise ValueError(f"wind {field}: expected a finite number > 0, got {value!r}")
-    return number
+def _vector3(value, field: str, accepted: Range = FINITE) -> np.ndarray:
+    return numbers(value, f"wind {field}", (3,), accepted)
+
+
+def _positive(value, field: str, accepted: Range = POSITIVE) -> float:
+    return number(value, f"wind {field}", accepted)
 
 
 def _parse_turbulence(turbulence) -> tuple[np.ndarray, np.ndarray]:
@@ -82,13 +78,7 @@ def _parse_turbulence(turbulence) -> tuple[np.ndarray, np.ndarray]:
         turbulence = TURBULENCE_PRESETS[turbulence]
     if not isinstance(turbulence, dict) or set(turbulence) != set(_TURBULENCE_KEYS):
         raise ValueError(f"wind turbulence: got {turbulence!r}; accepted: {accepted}")
-    sigmas = _vector3(turbulence["sigmas"], "sigmas")
-    lengths = _vector3(turbulence["lengths"], "lengths")
-    if np.any(sigmas < 0.0):
-        raise ValueError(f"wind sigmas: must be >= 0 m/s, got {sigmas.tolist()}")
-    if np.any(lengths <= 0.0):
-        raise ValueError(f"wind lengths: must be > 0 m, got {lengths.tolist()}")
-    return sigmas, lengths
+    return _vector3(turbulence["sigmas"], "sigmas", _SIGMAS), _vector3(turbulence["lengths"], "lengths", _LENGTHS)
 
 
 def dryden_state_space(sigmas, lengths, airspeed: float):
@@ -155,11 +145,13 @@ class DrydenWind:
     def __init__(self, dt: float, mean=(0.0, 0.0, 0.0), turbulence="none", airspeed=None):
         self._dt = _positive(dt, "dt")
         self._mean = _readonly(_vector3(mean, "mean"))
+        if np.linalg.norm(self._mean) > MAX_MEAN_WIND:
+            raise ValueError(f"wind mean: its speed must be <= {MAX_MEAN_WIND:g} m/s, got {mean!r}")
         sigmas, lengths = _parse_turbulence(turbulence)
         self._sigmas, self._lengths = _readonly(sigmas), _readonly(lengths)
         if airspeed is None:
             airspeed = max(float(np.linalg.norm(self._mean)), 1.0)
-        self._airspeed = _positive(airspeed, "airspeed")
+        self._airspeed = _positive(airspeed, "airspeed", _AIRSPEED)
         self._calm = not np.any(self._sigmas > 0.0)
         self._rng = None
         self._velocity = self._mean.copy()

@@ -20,6 +20,8 @@ from gymnasium import spaces
 
 from ..agents.quadplane_autopilot import PHASES, QuadPlaneAutopilot
 from ..envs.quadplane import CRASH_PENALTY, QuadPlaneEnv
+from ..models.checks import real_array
+from ..models.tasks import MissionTask, make_task
 
 MAX_AIRSPEED_ACTION = 60.0   # m/s
 #: m/s, largest cruise-setpoint change a detector may ask for (stays above stall, below 24 m/s)
@@ -33,6 +35,10 @@ class QuadPlaneAutopilotEnv(gym.Env):
     controls = "airspeed"          # what the action commands (QuadrotorEnv: "rotors", QuadPlaneEnv: "actuators")
 
     def __init__(self, **kwargs):
+        task = make_task(kwargs.get("task", "mission"))
+        if not isinstance(task, MissionTask):
+            raise ValueError(f"task: the autopilot flies a mission; accepted: 'mission' or a dict with name "
+                             f"'mission', got {kwargs['task']!r}")
         self.plane = QuadPlaneEnv(**kwargs)
         self.params, self.agent_hz, self.task = self.plane.params, self.plane.agent_hz, self.plane.task
         self.render_mode = self.plane.render_mode
@@ -85,7 +91,7 @@ class QuadPlaneAutopilotEnv(gym.Env):
 
 
 def _check_action(action) -> float:
-    a = np.asarray(action, dtype=np.float64).reshape(-1)
+    a = real_array(action, "action", "real numbers, one airspeed in m/s").reshape(-1)
     if a.shape != (1,):
         raise ValueError(f"action: expected one airspeed value (shape (1,)), got shape {np.shape(action)}")
     if not np.isfinite(a[0]):

@@ -1,0 +1,200 @@
+"""Every input a user passes is checked at make or reset, with an error naming the field, the value and what
+is accepted; a failed or dropped env holds no PyBullet client; a closed env says so (issue 35's reproducers)."""
+import contextlib
+import gc
+import re
+
+import gymnasium as gym
+import numpy as np
+import pybullet as p
+import pytest
+
+import ftcgym  # noqa: F401  (registers the envs)
+from ftcgym.envs.flight_env import check_display
+
+Q, P, AUTOPILOT = "ftcgym/Quadrotor-v0", "ftcgym/QuadPlane-v0", "ftcgym/QuadPlaneAutopilot-v0"
+
+
+def connected_clients() -> int:
+    return sum(p.isConnected(client) for client in range(4096))
+
+
+@pytest.mark.parametrize("env_id, overrides, message", [
+    (Q, {"mass": 0}, "vehicle_overrides['mass']: must be > 0, got 0"),
+    (Q, {"mass": -1}, "vehicle_overrides['mass']: must be > 0"),
+    (Q, {"thrust_coefficient": -1e-6}, "vehicle_overrides['thrust_coefficient']: must be > 0"),
+    (Q, {"motor_time_constant": 0}, "vehicle_overrides['motor_time_constant']: must be > 0"),
+    (Q, {"unloaded_time_constant": 0}, "vehicle_overrides['unloaded_time_constant']: must be > 0"),
+    (Q, {"inertia": [-1e-3, 1e-3, 1e-3]}, "vehicle_overrides['inertia']: must be > 0"),
+    (Q, {"omega_min": 1300.0}, "omega_min must be below omega_max"),
+    (Q, {"body_size": [0, 0.2, 0.1]}, "vehicle_overrides['body_size']: must be > 0"),
+    (Q, {"body_drag": [-1, 0, 0]}, "vehicle_overrides['body_drag']: must be >= 0"),
+    (Q, {"max_rotor_acceleration": -1}, "vehicle_overrides['max_rotor_acceleration']: must be > 0"),
+    (Q, {"unloaded_speed_ratio": 0.5}, "vehicle_overrides['unloaded_speed_ratio']: must be >= 1"),
+    (Q, {"mass": "1.0"}, "vehicle_overrides['mass']: expected a number > 0, got '1.0'"),
+    (Q, {"mass": True}, "vehicle_overrides['mass']: expected a number > 0, got True"),
+    (Q, {"inertia": [1e-3, 1e-3]}, "vehicle_overrides['inertia']: expected 3 numbers, got shape (2,)"),
+    (Q, {"mass": float("nan")}, "vehicle_overrides['mass']: must be finite"),
+    (P, {"hover_time_constant": 0}, "vehicle_overrides['hover_time_constant']: must be > 0"),
+    (P, {"pusher_resistance": 0}, "vehicle_overrides['pusher_resistance']: must be > 0"),
+    (P, {"air_density": -1}, "vehicle_overrides['air_density']: must be > 0"),
+    (P, {"wing_area": -1}, "vehicle_overrides['wing_area']: must be > 0"),
+    (P, {"battery_voltage": 0}, "vehicle_overrides['battery_voltage']: must be > 0"),
+    (P, {"hover_yaw_signs": [1, -1, 0.5, -1]}, "hover_yaw_signs and pusher_spin_direction must each be -1 or +1"),
+    (P, {"transition_start_speed": 20.0}, "transition_start_speed must be below transition_end_speed"),
+])
+def test_vehicle_overrides_out_of_range_fail_at_make(env_id, overrides, message):
+    with pytest.raises(ValueError, match=re.escape(message)):
+        gym.make(env_id, vehicle_overrides=overrides)
+
+
+def test_vehicle_overrides_out_of_range_fail_at_reset_too():
+    env = gym.make(Q)
+    with pytest.raises(ValueError, match=re.escape("reset options: vehicle_overrides['mass']: must be > 0")):
+        env.reset(seed=0, options={"vehicle_overrides": {"mass": 0.0}})
+    env.close()
+
+
+@pytest.mark.parametrize("fault, message", [
+    ({"kind": "sensor_bias", "target": "gyro", "magnitude": [1, 2]}, "faults[0].magnitude: expected 3 numbers"),
+    ({"kind": "sensor_bias", "target": "gyro", "magnitude": "x"}, "faults[0].magnitude: expected a number"),
+    ({"kind": "payload", "magnitude": -0.5}, "the payloads take the mass to -0.126 kg (vehicle 0.374 kg)"),
+    ({"kind": "loe", "target": 0, "magnitude": None}, "faults[0].magnitude: loe needs a magnitude"),
+    ({"kind": "rotor_loss", "target": 0, "magnitude": 0.5}, "rotor_loss is a total loss, so its magnitude is 1"),
+    ({"kind": "loe", "target": [0, 0]}, "faults[0].target: [0, 0] is not accepted for loe"),
+    ({"kind": "sensor_dropout", "target": "gyro", "magnitude": 2.0}, "sensor_dropout takes no magnitude"),
+    ({"kind": "loe", "target": 0, "rate": "fast"}, "faults[0].rate: expected a number > 0"),
+    ({"kind": "loe", "target": 9}, "faults[0].target: 9 is not accepted for loe"),
+    ({"kind": ["loe"]}, "faults[0].kind: ['loe'] is not a fault kind"),
+])
+def test_fault_specs_are_checked_against_the_channel_and_the_physics(fault, message):
+    with pytest.raises(ValueError, match=re.escape(message)):
+        gym.make(Q, faults=[fault])
+
+
+def test_a_sensor_bias_of_the_channels_shape_is_applied_and_saturates_at_the_space():
+    env = gym.make(Q, faults=[{"kind": "sensor_bias", "target": "gyro", "magnitude": [0.0, 0.0, 1e6]}])
+    obs, _ = env.reset(seed=0)
+    obs, *_ = env.step(np.full(4, 0.5))
+    assert obs["gyro"][2] == env.observation_space["gyro"].high[2]
+    assert env.observation_space.contains(obs)
+    env.close()
+
+
+def test_random_sensor_fault_draws_its_channel_from_the_seed():
+    env = gym.make(Q, faults="random:sensor_bias")
+    targets = {env.reset(seed=seed)[1]["faults"][0]["target"] for seed in range(12)}
+    assert targets <= {"gyro", "accel", "attitude", "position", "velocity", "rotor_speed"} and len(targets) >= 3
+    env.close()
+
+
+def test_info_reports_the_mass_and_effectiveness_the_physics_applies():
+    env = gym.make(Q, faults=[{"kind": "payload", "magnitude": -0.2},
+                              {"kind": "loe", "target": [1, 2], "magnitude": 0.5}])
+    env.reset(seed=0)
+    _, _, _, _, info = env.step(np.full(4, 0.5))
+    base = env.unwrapped
+    mass = p.getDynamicsInfo(base.world.body, -1, physicsClientId=base.world.client)[0]
+    assert info["truth"]["mass"] == pytest.approx(0.174) == pytest.approx(mass)
+    assert info["truth"]["rotor_effectiveness"].tolist() == [1.0, 0.5, 0.5, 1.0]
+    env.close()
+
+
+def test_a_sensor_fault_is_inactive_once_its_duration_has_ended():
+    env = gym.make(Q, agent_hz=100, faults=[{"kind": "sensor_dropout", "target": "gyro", "time": 0.1,
+                                             "duration": 0.2}])
+    env.reset(seed=0)
+    seen = []
+    for _ in range(40):
+        obs, _, _, _, info = env.step(np.full(4, 0.5))
+        seen.append((round(info["time"], 2), info["fault"]["active"], info["fault"]["onset_time"],
+                     bool(np.all(obs["gyro"] == 0))))
+    assert {s[1:] for s in seen if s[0] < 0.1} == {(False, None, False)}
+    assert {s[1:] for s in seen if 0.1 <= s[0] < 0.29} == {(True, 0.1, True)}
+    assert {s[1:] for s in seen if s[0] > 0.31} == {(False, 0.1, False)}
+    assert all(active == dropped for _, active, _, dropped in seen)   # info says what the readings get
+    env.close()
+
+
+@pytest.mark.parametrize("env_id, kwargs, message", [
+    (Q, {"max_episode_seconds": "10"}, "max_episode_seconds: expected a number > 0, got str '10'"),
+    (Q, {"max_episode_seconds": None}, "max_episode_seconds: expected a number > 0, got NoneType None"),
+    (Q, {"sensors": {"gyro_noise": "0.1"}}, "sensors['gyro_noise']: expected a number in [0, 1e+06], got str"),
+    (Q, {"sensors": {"position_hz": 0}}, "sensors['position_hz']: must be in [0.001, 1e+06], got 0"),
+    (Q, {"sensors": [1, 2]}, "sensors: expected a dict"),
+    (Q, {"wind": {"mean": [1e6, 0, 0]}}, "wind mean: its speed must be <= 50 m/s"),
+    (Q, {"wind": {"turbulence": {"sigmas": [1, 1, 1], "lengths": [0.001, 1, 1]}}}, "wind lengths: must be in [1,"),
+    (Q, {"physics_hz": 1e7, "agent_hz": 1}, "physics_hz: must be in [50, 20000], got 10000000.0"),
+    (Q, {"physics_hz": 10000, "agent_hz": 1}, "agent_hz: physics_hz / agent_hz must be a whole number in [1, 1000]"),
+    (Q, {"physics_hz": "500"}, "physics_hz: expected a number in [50, 20000], got str '500'"),
+    (Q, {"task": {"name": "hover", "altitude": 500}}, "task: its altitude reaches 500, beyond this env's limit 100"),
+    (Q, {"task": {"name": "hover", "yaw": 7}}, "task['yaw']: must be in [-3.14159, 3.14159], got 7"),
+    (Q, {"task": {"name": "square", "excitation": 1}}, "task['excitation']: expected True or False, got 1"),
+    (Q, {"task": ["hover"]}, "task: unknown task ['hover']"),
+    (Q, {"vehicle": ["bebop2"]}, "vehicle: unknown parameter set ['bebop2']"),
+    (AUTOPILOT, {"task": "square"}, "task: the autopilot flies a mission; accepted: 'mission'"),
+])
+def test_other_inputs_fail_at_make_naming_the_field(env_id, kwargs, message):
+    with pytest.raises(ValueError, match=re.escape(message)):
+        gym.make(env_id, **kwargs)
+
+
+def test_bad_reset_options_name_the_option():
+    env = gym.make(Q)
+    with pytest.raises(ValueError, match=re.escape("reset options: expected a dict")):
+        env.reset(seed=0, options=["faults"])
+    with pytest.raises(ValueError, match=re.escape("reset options: faults[0].target: 7 is not accepted")):
+        env.reset(seed=0, options={"faults": [{"kind": "rotor_loss", "target": 7}]})
+    with pytest.raises(ValueError, match=re.escape("reset options: faults: the payloads take the mass to")):
+        env.reset(seed=0, options={"faults": [{"kind": "payload", "magnitude": -1.0}]})
+    env.close()
+
+
+@pytest.mark.parametrize("action", [np.zeros(4, complex), np.array(["0.5"] * 4), np.array([True] * 4),
+                                    [0.5, None, 0.5, 0.5]])
+def test_actions_that_are_not_real_numbers_are_refused(action):
+    env = gym.make(Q)
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="action: expected real numbers"):
+        env.step(action)
+    assert env.unwrapped.time == 0.0
+    env.close()
+
+
+@pytest.mark.parametrize("env_id", [Q, AUTOPILOT])
+def test_step_and_reset_after_close_say_the_env_is_closed(env_id):
+    env = gym.make(env_id)
+    env.reset(seed=0)
+    env.close()
+    with pytest.raises(RuntimeError, match="step: this env is closed"):
+        env.step(env.action_space.sample())
+    with pytest.raises(RuntimeError, match="reset: this env is closed"):
+        env.reset(seed=0)
+
+
+def test_failed_makes_hold_no_client_and_dropped_envs_release_theirs():
+    before = connected_clients()
+    bad = [{"faults": [{"kind": "loe", "target": 9}]}, {"sensors": {"gyro_noise": -1}},
+           {"vehicle_overrides": {"omega_max": -1.0}}]
+    for i in range(300):
+        with contextlib.suppress(ValueError):
+            gym.make(Q, **bad[i % 3])
+    with contextlib.suppress(ValueError):
+        gym.make(AUTOPILOT, task="square")
+    assert connected_clients() == before
+    envs = [gym.make(Q) for _ in range(50)]
+    assert connected_clients() == before + 50
+    del envs
+    gc.collect()
+    assert connected_clients() == before
+
+
+def test_human_render_without_a_display_raises_before_connecting(monkeypatch):
+    before = connected_clients()
+    monkeypatch.delenv("DISPLAY", raising=False)
+    with pytest.raises(RuntimeError, match=re.escape("render_mode='human': no display (DISPLAY='')")):
+        gym.make(Q, render_mode="human")
+    monkeypatch.setenv("DISPLAY", ":4321")           # no server listens there
+    with pytest.raises(RuntimeError, match="the display ':4321' does not answer"):
+        check_display()
+    assert connected_clients() == before
