@@ -58,6 +58,12 @@ def test_a_second_sweep_into_a_folder_in_use_exits_2_before_looking_at_it(held, 
     assert sorted(p.name for p in held.iterdir()) == [LOCK_FILE]   # no sweep_config.json: it never claimed it
 
 
+def test_a_second_train_into_a_folder_in_use_exits_2_before_building_anything(held, capsys):
+    assert main(["train", "--config", "rotor-loss-recovery", "--out", str(held), "--no-progress"]) == 2
+    one_line_naming(held, capsys)
+    assert sorted(p.name for p in held.iterdir()) == [LOCK_FILE]
+
+
 def test_the_error_names_the_holders_pid_and_a_killed_holder_leaves_no_lock(tmp_path, capsys):
     folder = tmp_path / "out"
     holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(folder)], stdin=subprocess.PIPE,
