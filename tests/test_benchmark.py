@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from ftcgym.benchmark import metrics
+from ftcgym.benchmark.outputs import OutputFolder
 from ftcgym.benchmark.report import format_table, format_value, latency_samples, plot_latencies
 from ftcgym.benchmark.runner import episode_seed, roll_out, run_benchmark, score_episode
 from ftcgym.benchmark.scenarios import get_scenario
@@ -244,6 +245,10 @@ def test_workers_do_not_change_results_or_their_order():
 
 
 def test_bench_cli_end_to_end(tmp_path, capsys):
+    with OutputFolder(tmp_path) as earlier:   # an earlier run's files, one a plot this run does not make
+        for name in ("results.json", "quad-plane-cruise.png"):
+            earlier.staged(name).write_text("earlier")
+        earlier.publish()
     assert main(["bench", "--scenario", "quad-hover", "--episodes", "1", "--workers", "1",
                  "--env-kwargs", '{"max_episode_seconds": 2}', "--out", str(tmp_path)]) == 0
     results = json.loads((tmp_path / "results.json").read_text())
@@ -258,6 +263,8 @@ def test_bench_cli_end_to_end(tmp_path, capsys):
     assert (tmp_path / "quad-hover.png").stat().st_size > 0
     assert "quad-hover.png" in (tmp_path / "report.md").read_text()
     assert "quad-hover" in capsys.readouterr().out
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([   # this run's files only, published whole
+        ".ftcgym.lock", ".ftcgym-files.json", "results.json", "episodes.csv", "report.md", "quad-hover.png"])
 
 
 def test_a_pitot_blockage_is_isolated_by_naming_the_pitot():

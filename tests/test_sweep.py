@@ -6,8 +6,9 @@ import json
 import pytest
 
 from ftcgym.benchmark.journal import EpisodeJournal
+from ftcgym.benchmark.outputs import OutputFolder
 from ftcgym.benchmark.sweep import check_parameter_sets, load_config, parse_config, run_sweep, sweep_jobs
-from ftcgym.benchmark.sweep_report import summarize_sets
+from ftcgym.benchmark.sweep_report import summarize_sets, write_sweep_report
 from ftcgym.cli import main
 
 SMALL = {
@@ -122,6 +123,32 @@ def test_an_existing_sweep_is_not_overwritten_or_resumed_with_another_config(tmp
     with pytest.raises(ValueError, match=r"--resume: .* holds a sweep with other \['seeds'\]"):
         run_sweep(parse_config({**SMALL, "seeds": [0]}), tmp_path, resume=True, episode=fake_episode,
                   progress=False)
+
+
+def test_a_journal_key_recorded_twice_with_different_rows_is_an_error(tmp_path):
+    journal = EpisodeJournal(tmp_path)
+    journal.record_row("a/s/p/0/0", {"x": 1.0, "y": float("nan")})
+    journal.record_row("a/s/p/0/0", {"y": float("nan"), "x": 1.0})   # the same row again: kept once
+    assert list(journal.finished_rows()) == ["a/s/p/0/0"]
+    journal.record_row("a/s/p/0/0", {"x": 2.0, "y": None})
+    with pytest.raises(ValueError, match=r"episodes.jsonl:3: episode 'a/s/p/0/0' is recorded twice with different"):
+        journal.finished_rows()
+
+
+def test_a_sweep_replaces_the_folders_previous_run_and_owns_its_journal(tmp_path):
+    with OutputFolder(tmp_path) as bench:   # an earlier bench run in the folder
+        for name in ("results.json", "quad-hover.png"):
+            bench.staged(name).write_text("bench")
+        bench.publish()
+    config = parse_config(SMALL)
+    rows = run_sweep(config, tmp_path, episode=fake_episode, progress=False)
+    write_sweep_report(tmp_path, config, rows, {"command": "ftcgym sweep", "backend": "local", "wall_time_s": 1.0})
+    report = ["detection_delay.png", "detections.png", "episodes.jsonl", "report.md", "results.json", "sets.csv",
+              "sweep_config.json"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([".ftcgym.lock", ".ftcgym-files.json", *report])
+    assert json.loads((tmp_path / ".ftcgym-files.json").read_text()) == sorted([*report, "failures.jsonl"])
+    with OutputFolder(tmp_path), pytest.raises(ValueError, match="already holds"):   # nested in one process
+        run_sweep(config, tmp_path, episode=fake_episode, progress=False)
 
 
 def test_set_summary_counts_missed_detections_and_false_alarms():

@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 ROWS_FILE, FAILURES_FILE = "episodes.jsonl", "failures.jsonl"
+CONFIG_FILE = "sweep_config.json"  # the sweep config the rows were flown with (`sweep._claim_out_dir`)
 
 
 class EpisodeJournal:
@@ -26,7 +27,9 @@ class EpisodeJournal:
         return self.rows_path.exists()
 
     def finished_rows(self) -> dict[str, dict]:
-        """Rows recorded so far, by episode key. A line cut short by a crash is skipped (and said so)."""
+        """Rows recorded so far, by episode key. A line cut short by a crash is skipped (and said so); a key
+        recorded twice with different rows is a ValueError naming it (two runs wrote this journal), the same
+        row twice is kept once."""
         rows: dict[str, dict] = {}
         if not self.rows_path.exists():
             return rows
@@ -37,9 +40,14 @@ class EpisodeJournal:
         for number, line in enumerate(text.splitlines(), start=1):
             try:
                 entry = json.loads(line)
-                rows[entry["key"]] = entry["row"]
+                key, row = entry["key"], entry["row"]
             except (json.JSONDecodeError, KeyError, TypeError):
                 print(f"{self.rows_path}:{number}: unreadable line skipped; that episode runs again", file=sys.stderr)
+                continue
+            if key in rows and _canonical(rows[key]) != _canonical(row):
+                raise ValueError(f"{self.rows_path}:{number}: episode {key!r} is recorded twice with different "
+                                 "rows; the journal mixes two runs, so neither can be trusted")
+            rows[key] = row
         return rows
 
     def record_row(self, key: str, row: dict) -> None:
@@ -59,3 +67,8 @@ class EpisodeJournal:
             file.write(json.dumps(entry) + "\n")
             file.flush()
             os.fsync(file.fileno())  # cheap next to an episode, and what makes "never lost" true
+
+
+def _canonical(row) -> str:
+    """A row as comparable text: JSON with sorted keys, so NaN equals NaN and key order does not matter."""
+    return json.dumps(row, sort_keys=True)

@@ -11,6 +11,7 @@ import numpy as np
 from matplotlib.figure import Figure  # a bare Figure renders with Agg: no pyplot, no global backend
 
 from ftcgym.benchmark.metrics import EPISODE_FIELDS, SUMMARY_FIELDS
+from ftcgym.benchmark.outputs import OutputFolder
 
 # Short column labels for the tables; results.json and the CSV keep the full field names.
 COLUMN_LABELS = {
@@ -67,20 +68,28 @@ def markdown_table(summary: list[dict]) -> str:
 
 def write_report(out_dir, results: dict, episodes: list[dict]) -> list[Path]:
     """Write results.json, episodes.csv, the plots and report.md of a run's `results` document
-    (`results.results_document`); `episodes` are the rows with their trajectories, for the plots."""
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    paths = [write_json(out_dir / "results.json", results), write_csv(out_dir / "episodes.csv", results["episodes"])]
+    (`results.results_document`); `episodes` are the rows with their trajectories, for the plots.
+    The files are staged and published whole (`outputs.OutputFolder`): the folder then holds this run's
+    files and none of its previous run's."""
+    with OutputFolder(out_dir) as folder:
+        paths = write_files(folder.staged, results, episodes)
+        folder.publish()
+    return [folder.path / path.name for path in paths]
+
+
+def write_files(place, results: dict, episodes: list[dict]) -> list[Path]:
+    """The report's files, each written at `place(name)`; returns their paths, report.md's plots last."""
+    paths = [write_json(place("results.json"), results), write_csv(place("episodes.csv"), results["episodes"])]
     plots = []
     for name in dict.fromkeys(episode["scenario"] for episode in episodes):
         of_scenario = _of_scenario(episodes, name)
-        plots.append(plot_scenario(out_dir / f"{name}.png", name, of_scenario))
+        plots.append(plot_scenario(place(f"{name}.png"), name, of_scenario))
         event = next((e for e in of_scenario if e["trajectory"].get("event")), None)
         if event is not None:
-            plots.append(plot_event(out_dir / f"{name}-event.png", event))
+            plots.append(plot_event(place(f"{name}-event.png"), event))
         if any(e["fault_onset"] is not None for e in of_scenario):
-            plots.append(plot_latencies(out_dir / f"{name}-latency.png", name, of_scenario))
-    paths.append(write_markdown(out_dir / "report.md", results["summary"], results["config"], plots))
+            plots.append(plot_latencies(place(f"{name}-latency.png"), name, of_scenario))
+    paths.append(write_markdown(place("report.md"), results["summary"], results["config"], plots))
     return paths + plots
 
 

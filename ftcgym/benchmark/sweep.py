@@ -31,7 +31,8 @@ from pathlib import Path
 import yaml
 
 from ftcgym.benchmark.backends import Callbacks, EpisodesFailed, Job, run_jobs
-from ftcgym.benchmark.journal import EpisodeJournal
+from ftcgym.benchmark.journal import CONFIG_FILE, EpisodeJournal
+from ftcgym.benchmark.outputs import OutputFolder, atomic_write_text
 from ftcgym.benchmark.runner import episode_seed, make_env
 from ftcgym.benchmark.scenarios import Scenario, get_scenario
 
@@ -261,11 +262,17 @@ def check_parameter_sets(config: SweepConfig) -> None:
 def run_sweep(config: SweepConfig, out_dir, backend: str = "local", workers: int = 1, resume: bool = False,
               progress: bool = True, **backend_options) -> list[dict]:
     """Fly the sweep's unfinished episodes, journaling each row; return every row (set name added), job order.
+    Holds `out_dir`'s lock throughout (`outputs.OutputFolder`): FolderInUse if another run holds it.
 
     Raises EpisodesFailed, after recording it, when episodes failed on every attempt: the finished ones
     stay in the journal and `resume` runs only what is missing.
     """
-    journal = EpisodeJournal(out_dir)
+    with OutputFolder(out_dir):  # taken before the folder is looked at, so two fresh sweeps cannot both claim it
+        return _run_sweep(config, EpisodeJournal(out_dir), backend, workers, resume, progress, backend_options)
+
+
+def _run_sweep(config: SweepConfig, journal: EpisodeJournal, backend: str, workers: int, resume: bool,
+               progress: bool, backend_options: dict) -> list[dict]:
     _claim_out_dir(journal, config, resume)
     jobs = sweep_jobs(config)
     finished = journal.finished_rows() if resume else {}
@@ -291,7 +298,7 @@ def _record(journal: EpisodeJournal, finished: dict, job: Job, row: dict) -> Non
 
 def _claim_out_dir(journal: EpisodeJournal, config: SweepConfig, resume: bool) -> None:
     """Write the config to the output folder; refuse to mix two sweeps' rows in one folder."""
-    path = journal.out_dir / "sweep_config.json"
+    path = journal.out_dir / CONFIG_FILE
     if journal.exists() and not resume:
         raise ValueError(f"{journal.out_dir} already holds a sweep's episodes: pass --resume to finish it, "
                          "or choose another --out")
@@ -301,5 +308,4 @@ def _claim_out_dir(journal: EpisodeJournal, config: SweepConfig, resume: bool) -
         if changed:
             raise ValueError(f"--resume: {journal.out_dir} holds a sweep with other {changed}; "
                              "resume with the same config and options, or choose another --out")
-    journal.out_dir.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(config.to_json(), indent=2) + "\n")
+    atomic_write_text(path, json.dumps(config.to_json(), indent=2) + "\n")

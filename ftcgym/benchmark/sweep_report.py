@@ -11,6 +11,9 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure  # a bare Figure renders with Agg: no pyplot, no global backend
 
+from ftcgym.benchmark.journal import CONFIG_FILE, FAILURES_FILE, ROWS_FILE
+from ftcgym.benchmark.outputs import OutputFolder
+
 SET_FIELDS = ("parameter_set", "flights", "fault_flights", "detected", "missed", "false_alarms",
               "delay_median_ms", "delay_q1_ms", "delay_q3_ms", "delay_max_ms")
 
@@ -34,20 +37,29 @@ def _summarize_set(name: str, rows: list[dict]) -> dict:
 
 
 def write_sweep_report(out_dir, config, rows: list[dict], run: dict) -> str:
-    """Write results.json, sets.csv, the two plots and report.md; return the summary as a text table."""
-    out_dir = Path(out_dir)
+    """Write results.json, sets.csv, the two plots and report.md; return the summary as a text table.
+    They are staged and published whole (`outputs.OutputFolder`); the journal and sweep_config.json, written
+    as the sweep ran, count as this run's files too."""
+    with OutputFolder(out_dir) as folder:
+        table = write_sweep_files(folder.staged, config, rows, run)
+        folder.publish(also=(ROWS_FILE, FAILURES_FILE, CONFIG_FILE))
+    return table
+
+
+def write_sweep_files(place, config, rows: list[dict], run: dict) -> str:
+    """The report's files, each written at `place(name)`; returns the summary as a text table."""
     names = [s.name for s in config.parameter_sets]
     summary = summarize_sets(rows, names)
     results = {"summary": summary, "episodes": rows, "config": {**config.to_json(), "run": run}}
-    (out_dir / "results.json").write_text(json.dumps(results, indent=1) + "\n")
-    with (out_dir / "sets.csv").open("w", newline="") as file:
+    place("results.json").write_text(json.dumps(results, indent=1) + "\n")
+    with place("sets.csv").open("w", newline="") as file:
         writer = csv.DictWriter(file, fieldnames=SET_FIELDS)
         writer.writeheader()
         writer.writerows(summary)
-    plot_delays(out_dir / "detection_delay.png", rows, names, config.name)
-    plot_detections(out_dir / "detections.png", summary, config.name)
+    plot_delays(place("detection_delay.png"), rows, names, config.name)
+    plot_detections(place("detections.png"), summary, config.name)
     table = format_sets(summary)
-    (out_dir / "report.md").write_text(
+    place("report.md").write_text(
         f"# Sweep {config.name}\n\n{config.description}\n\nCommand: `{run['command']}` ({run['backend']} backend, "
         f"{run['wall_time_s']:.0f} s)\n\n```\n{table}\n```\n\n![detection delay](detection_delay.png)\n\n"
         f"![missed detections and false alarms](detections.png)\n")

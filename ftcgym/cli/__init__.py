@@ -32,7 +32,12 @@ COMMANDS = (bench, sweep, replay, airdata_study, thresholds, perf, trim, train, 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser().parse_args(argv)
-    return args.run(args, argv) or 0
+    from ftcgym.benchmark.outputs import FolderInUse  # a small module: no simulator loads here
+    try:
+        return args.run(args, argv) or 0
+    except FolderInUse as error:  # a usage error, as argparse's: status 2, one line
+        print(f"ftcgym {args.command}: {error}", file=sys.stderr)
+        return 2
 
 
 def build_parser() -> argparse.ArgumentParser:

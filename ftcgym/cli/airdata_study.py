@@ -51,8 +51,10 @@ def run(args, argv: list[str]) -> int:
 
 
 def _write(path, results, config) -> None:
+    """Replace `path` whole (`atomic_write_text`): a run stopped mid-write keeps the last complete file."""
     from ftcgym.benchmark.airdata_study import summary
+    from ftcgym.benchmark.outputs import atomic_write_text
 
     if path:
-        with open(path, "w") as f:
-            json.dump({"summary": summary(results), "episodes": results, "config": config}, f, indent=1)
+        atomic_write_text(path, json.dumps({"summary": summary(results), "episodes": results, "config": config},
+                                           indent=1))

@@ -43,9 +43,8 @@ def run(args, argv: list[str]) -> int:
     if args.list:
         print(listing())
         return 0
-    from ftcgym.benchmark.report import format_table, write_report
-    from ftcgym.benchmark.results import results_document, run_config, with_detector
-    from ftcgym.benchmark.runner import run_benchmark
+    from ftcgym.benchmark.outputs import OutputFolder
+    from ftcgym.benchmark.results import with_detector
     from ftcgym.benchmark.scenarios import default_scenarios
 
     try:
@@ -53,6 +52,16 @@ def run(args, argv: list[str]) -> int:
                      for s in args.scenario or default_scenarios()]
     except ValueError as error:
         raise SystemExit(f"ftcgym bench: --detector-kwargs: {error}") from None
+    with OutputFolder(args.out):  # before flying: a second run into the folder stops now, not at the end
+        return bench(args, argv, scenarios)
+
+
+def bench(args, argv: list[str], scenarios) -> int:
+    """Fly `scenarios`, write the report to args.out and print the summary table."""
+    from ftcgym.benchmark.report import format_table, write_report
+    from ftcgym.benchmark.results import results_document, run_config
+    from ftcgym.benchmark.runner import run_benchmark
+
     started = time.perf_counter()
     episodes = run_benchmark(scenarios, args.policy, args.episodes, args.seed, args.workers, args.env_kwargs,
                              backend=args.backend, ray_address=args.ray_address, chunk=args.chunk,

@@ -36,14 +36,25 @@ def add_parser(subparsers) -> None:
 
 
 def run(args, argv: list[str]) -> int:
-    from ftcgym.benchmark.journal import EpisodeJournal
-    from ftcgym.benchmark.sweep import load_config, run_sweep
-    from ftcgym.benchmark.sweep_report import write_sweep_report
+    from ftcgym.benchmark.outputs import OutputFolder
+    from ftcgym.benchmark.sweep import load_config
 
-    out = None
     try:
         config = load_config(args.config).select(args.sets, args.episodes, args.env_kwargs)
-        out = args.out or os.path.join("sweep_out", config.name)
+    except ValueError as error:
+        raise SystemExit(f"ftcgym sweep: {error}") from None
+    out = args.out or os.path.join("sweep_out", config.name)
+    with OutputFolder(out):  # held from the check of what the folder holds to the last report file
+        return sweep(args, argv, config, out)
+
+
+def sweep(args, argv: list[str], config, out: str) -> int:
+    """Run (or resume) the sweep into `out`, write its report and print the per-set table."""
+    from ftcgym.benchmark.journal import EpisodeJournal
+    from ftcgym.benchmark.sweep import run_sweep
+    from ftcgym.benchmark.sweep_report import write_sweep_report
+
+    try:
         started = time.perf_counter()
         rows = run_sweep(config, out, args.backend, args.workers or os.cpu_count() or 1, args.resume,
                          progress=args.progress, ray_address=args.ray_address, chunk=args.chunk,

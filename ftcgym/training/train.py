@@ -26,8 +26,12 @@ from pathlib import Path
 
 import gymnasium as gym
 
+from ftcgym.benchmark.outputs import OutputFolder
 from ftcgym.training.config import ACTIVATIONS, TrainConfig
 from ftcgym.training.policy import MANIFEST_FILE, MODEL_FILE, NORMALIZER_FILE
+
+#: what a run writes in OUT as it trains (the final files are staged and published at the end)
+IN_PLACE = ("checkpoints", "pretrained", "best", "evaluations.jsonl", "logs", "tb")
 
 
 def algorithm_class(name: str):
@@ -72,7 +76,15 @@ def train(config: TrainConfig, out: str | Path, progress: bool = True, command: 
           verbose: int = 0, init_from: str | Path | None = None) -> dict:
     """Run `config`, write the outputs listed in the module docstring to `out`; returns the manifest.
     `init_from`: a saved model (folder or .zip, e.g. a shipped policy) whose weights and observation
-    statistics start the run instead of the config's pre-training (fine-tuning)."""
+    statistics start the run instead of the config's pre-training (fine-tuning). Holds `out`'s lock from the
+    start (`outputs.OutputFolder`: FolderInUse if another run holds it); the model, its statistics and the
+    manifest are staged and published together at the end."""
+    with OutputFolder(out) as folder:
+        return _train(config, folder, progress, command, verbose, init_from)
+
+
+def _train(config: TrainConfig, folder: OutputFolder, progress: bool, command: str | None, verbose: int,
+           init_from: str | Path | None) -> dict:
     import torch
     from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback
 
@@ -81,8 +93,7 @@ def train(config: TrainConfig, out: str | Path, progress: bool = True, command: 
     # Small MLPs update fastest on one thread; more threads contend with the env workers (and, on a
     # shared 2-core machine, slowed PPO's update by ~10x).
     torch.set_num_threads(config.torch_threads)
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = folder.path
     venv = build_vec_env(config)
     tensorboard = importlib.util.find_spec("tensorboard") is not None
     if not tensorboard:
@@ -117,15 +128,16 @@ def train(config: TrainConfig, out: str | Path, progress: bool = True, command: 
     if config.total_steps > 0:
         model.learn(config.total_steps, callback=CallbackList(callbacks), progress_bar=sb3_bar)
     wall_time = time.perf_counter() - started
-    model.save(out / MODEL_FILE)
+    model.save(folder.staged(MODEL_FILE))
     if config.normalize:
-        venv.save(str(out / NORMALIZER_FILE))
+        venv.save(str(folder.staged(NORMALIZER_FILE)))
     venv.close()
     manifest = _manifest(config, model, wall_time, command, rl_time=wall_time - pretrain_time)
     manifest["init_from"] = str(init_from) if init_from is not None else None
     if pretraining is not None:
         manifest["pretrain"] = {"wall_time_s": pretrain_time, "iterations": pretraining}
-    (out / MANIFEST_FILE).write_text(json.dumps(manifest, indent=2) + "\n")
+    folder.staged(MANIFEST_FILE).write_text(json.dumps(manifest, indent=2) + "\n")
+    folder.publish(also=tuple(name for name in IN_PLACE if (out / name).exists()))
     return manifest
 
 
