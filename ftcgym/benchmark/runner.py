@@ -248,6 +248,15 @@ def make_env(scenario: Scenario, env_overrides: dict | None = None) -> gym.Env:
     return env
 
 
+def check_setup(scenario: Scenario, env_overrides: dict | None = None) -> None:
+    """Build the scenario's env and detector once, so a bad env or detector argument is one ValueError naming the
+    scenario before any episode flies (instead of the same failure in every episode)."""
+    try:
+        make_env(scenario, env_overrides).close()
+    except (ValueError, TypeError) as error:
+        raise ValueError(f"scenario {scenario.name!r}: {error}") from error
+
+
 def run_episode(scenario: Scenario | str, policy_name: str, seed: int,
                 env_overrides: dict | None = None) -> dict:
     """One episode: its row of EPISODE_FIELDS (JSON-ready values) plus "trajectory" (arrays). `policy_name`
@@ -274,8 +283,11 @@ def run_benchmark(scenarios, policies=None, episodes: int | None = None, seed: i
     `backend` "ray" runs them as Ray tasks instead; `backend_options` go to `backends.run_jobs`
     (ray_address, chunk, retries, callbacks).
     """
+    scenarios = [get_scenario(s) if isinstance(s, str) else s for s in scenarios]
+    for scenario in scenarios:
+        check_setup(scenario, env_overrides)
     jobs = [Job(f"{scenario.name}/{policy}/{index}", scenario, policy, episode_seed(seed, index), env_overrides)
-            for scenario in (get_scenario(s) if isinstance(s, str) else s for s in scenarios)
+            for scenario in scenarios
             for policy in (policies or scenario.policies)
             for index in range(episodes or scenario.episodes)]
     workers = min(workers or os.cpu_count() or 1, max(len(jobs), 1))

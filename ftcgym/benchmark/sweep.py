@@ -102,8 +102,19 @@ def load_config(source: str) -> SweepConfig:
         if not path.exists():
             builtins = sorted(p.stem for p in BUILTIN_DIR.glob("*.yaml"))
             raise ValueError(f"config: no file {source!r} and no built-in sweep of that name; built-in: {builtins}")
-    data = yaml.safe_load(path.read_text())
-    return parse_config(data, where=path.name)
+    return parse_config(read_yaml(path), where=path.name)
+
+
+def read_yaml(path: Path):
+    """The YAML document in `path`; ValueError naming the file and the line for text that is not YAML."""
+    try:
+        return yaml.safe_load(path.read_text())
+    except yaml.YAMLError as error:
+        mark = getattr(error, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        raise ValueError(f"{path}: not valid YAML{where}: {getattr(error, 'problem', None) or error}") from None
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not a text file") from None
 
 
 def parse_config(data, where: str = "config") -> SweepConfig:

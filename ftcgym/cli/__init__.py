@@ -21,22 +21,37 @@ lists the names. `ftcgym COMMAND --help` describes each command.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+import zipfile
+
+import yaml
 
 from . import airdata_study, bench, evaluate, perf, replay, sweep, thresholds, train, trim
 from .common import package_version
 
 COMMANDS = (bench, sweep, replay, airdata_study, thresholds, perf, trim, train, evaluate)
+#: errors from what the user passed: a value out of range, an unreadable or malformed file, an unwritable folder
+USER_ERRORS = (ValueError, OSError, yaml.YAMLError, zipfile.BadZipFile)
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run one subcommand. What a user got wrong (a bad value, file or folder; a folder in use) ends in one
+    line on stderr and status 2, as argparse's usage errors do; episodes that failed end in their list and
+    status 1. FTCGYM_TRACEBACK=1 shows the traceback instead."""
     argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser().parse_args(argv)
-    from ftcgym.benchmark.outputs import FolderInUse  # a small module: no simulator loads here
+    from ftcgym.benchmark.backends import EpisodesFailed
+    from ftcgym.benchmark.outputs import FolderInUse  # small modules: no simulator loads here
     try:
         return args.run(args, argv) or 0
-    except FolderInUse as error:  # a usage error, as argparse's: status 2, one line
-        print(f"ftcgym {args.command}: {error}", file=sys.stderr)
+    except (FolderInUse, EpisodesFailed, *USER_ERRORS) as error:
+        if os.environ.get("FTCGYM_TRACEBACK"):
+            raise
+        if isinstance(error, EpisodesFailed):      # its list of failed episodes, one per line
+            print(f"ftcgym {args.command}: {error}", file=sys.stderr)
+            return 1
+        print(f"ftcgym {args.command}: {' '.join(str(error).split())}", file=sys.stderr)
         return 2
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from .common import json_object, positive_int
+from .common import json_object, non_negative_int, positive_int, scenario_name
 
 
 def add_parser(subparsers) -> None:
@@ -12,7 +12,8 @@ def add_parser(subparsers) -> None:
         "airdata-study", help="every airdata_ekf criterion's alarm and the airspeed error on a scenario",
         description="Fly a scenario scored on airdata_ekf and report the Table 2 and CUSUM pitot alarms, the "
                     "innovation (GNSS, pusher RPM) alarms and the EKF airspeed error after detection.")
-    parser.add_argument("--scenario", required=True, metavar="NAME", help="an airdata_ekf scenario")
+    parser.add_argument("--scenario", required=True, metavar="NAME", type=scenario_name,
+                        help="an airdata_ekf scenario")
     add_study_options(parser, episodes=10)
     parser.add_argument("--out", metavar="FILE", help="write episodes and summary as JSON")
     parser.set_defaults(run=run)
@@ -21,7 +22,8 @@ def add_parser(subparsers) -> None:
 def add_study_options(parser, episodes: int) -> None:
     """The options `airdata-study` and `thresholds` share."""
     parser.add_argument("--episodes", type=positive_int, default=episodes, metavar="N")
-    parser.add_argument("--seed", type=int, default=0, metavar="S", help="run seed, as ftcgym bench --seed")
+    parser.add_argument("--seed", type=non_negative_int, default=0, metavar="S",
+                        help="run seed, as ftcgym bench --seed")
     parser.add_argument("--policy", default="oracle-airspeed", metavar="NAME")
     parser.add_argument("--env-kwargs", type=json_object, default=None, metavar="JSON",
                         help="merged into the scenario's env kwargs")

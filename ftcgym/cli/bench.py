@@ -7,7 +7,7 @@ import time
 
 from ftcgym.benchmark.backends import add_backend_arguments
 
-from .common import detector_name, json_object, package_version, policy_name, positive_int, scenario
+from .common import detector_name, json_object, non_negative_int, package_version, policy_name, positive_int, scenario
 
 
 def add_parser(subparsers) -> None:
@@ -28,7 +28,7 @@ def add_parser(subparsers) -> None:
                         help='JSON object of detector arguments, e.g. \'{"G_scale": 1.2}\' for loe_kalman')
     parser.add_argument("--episodes", type=positive_int, metavar="N",
                         help="episodes per scenario and policy (default: each scenario's own)")
-    parser.add_argument("--seed", type=int, default=0, metavar="S", help="base seed (default: 0)")
+    parser.add_argument("--seed", type=non_negative_int, default=0, metavar="S", help="base seed (default: 0)")
     parser.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1, metavar="W",
                         help="worker processes; 1 runs in-process (default: one per CPU)")
     parser.add_argument("--env-kwargs", type=json_object, default={}, metavar="JSON",
@@ -47,11 +47,7 @@ def run(args, argv: list[str]) -> int:
     from ftcgym.benchmark.results import with_detector
     from ftcgym.benchmark.scenarios import default_scenarios
 
-    try:
-        scenarios = [with_detector(s, args.detector, args.detector_kwargs)
-                     for s in args.scenario or default_scenarios()]
-    except ValueError as error:
-        raise SystemExit(f"ftcgym bench: --detector-kwargs: {error}") from None
+    scenarios = [with_detector(s, args.detector, args.detector_kwargs) for s in args.scenario or default_scenarios()]
     with OutputFolder(args.out):  # before flying: a second run into the folder stops now, not at the end
         return bench(args, argv, scenarios)
 

@@ -37,6 +37,12 @@ def scenario(name: str):
         raise argparse.ArgumentTypeError(str(error)) from None
 
 
+def scenario_name(name: str) -> str:
+    """A scenario name that resolves (as `scenario`), kept as given."""
+    scenario(name)
+    return name
+
+
 def policy_name(name: str) -> str:
     """A policy name that resolves (built-in, installed plug-in or MODULE:ATTR), kept as given."""
     from ftcgym.agents import POLICIES

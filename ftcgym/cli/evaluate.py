@@ -2,8 +2,9 @@
 from __future__ import annotations
 
 import time
+import zipfile
 
-from .common import detector_name, json_object, positive_int, scenario
+from .common import detector_name, json_object, non_negative_int, positive_int, scenario
 
 
 def add_parser(subparsers) -> None:
@@ -16,7 +17,7 @@ def add_parser(subparsers) -> None:
                         help="benchmark scenario (default: quad-rotor-loss-hover)")
     parser.add_argument("--episodes", type=positive_int, metavar="N",
                         help="episodes (default: the scenario's own)")
-    parser.add_argument("--seed", type=int, default=0, metavar="S", help="base seed (default: 0)")
+    parser.add_argument("--seed", type=non_negative_int, default=0, metavar="S", help="base seed (default: 0)")
     parser.add_argument("--env-kwargs", type=json_object, default={}, metavar="JSON",
                         help="JSON object merged (top-level keys) into the scenario's gym.make kwargs")
     parser.add_argument("--detector", metavar="NAME", type=detector_name,
@@ -35,8 +36,8 @@ def run(args, argv: list[str]) -> int:
     try:
         scenario = with_detector(args.scenario, args.detector, args.detector_kwargs)
         summary, episodes = evaluate_model(args.model, scenario, args.episodes, args.seed, args.env_kwargs)
-    except (ValueError, FileNotFoundError) as error:
-        raise SystemExit(f"ftcgym evaluate: {error}") from None
+    except zipfile.BadZipFile:
+        raise ValueError(f"model {args.model}: not a Stable-Baselines3 model (.zip)") from None
     print(format_table(summary))
     print(f"\n{len(episodes)} episodes in {time.perf_counter() - started:.1f} s")
     return 0

@@ -19,6 +19,8 @@ import numpy as np
 import ftcgym  # noqa: F401  (registers the ids; imported before measuring so memory growth is the run's)
 from ftcgym.agents import make_policy
 
+from .common import non_negative_int, positive_int
+
 QUADROTOR, QUADPLANE = "ftcgym/Quadrotor-v0", "ftcgym/QuadPlane-v0"
 #: every case flies with light turbulence and mean wind (sensors are always on); the quadrotor loses a rotor
 WORKLOAD = {QUADROTOR: {"wind": {"mean": [1.0, -1.0, 0.0], "turbulence": "light"}, "faults": "random:rotor_loss",
@@ -37,8 +39,8 @@ CASES = (
 def add_parser(subparsers) -> None:
     parser = subparsers.add_parser("perf", help="measure simulation speed and memory",
                                    description=__doc__.split("\n\n")[1].replace("\n", " "))
-    parser.add_argument("--steps", type=int, default=20000, help="env steps per case (default 20000)")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--steps", type=positive_int, default=20000, help="env steps per case (default 20000)")
+    parser.add_argument("--seed", type=non_negative_int, default=0, metavar="S")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     parser.set_defaults(run=run)
 

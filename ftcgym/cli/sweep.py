@@ -39,10 +39,7 @@ def run(args, argv: list[str]) -> int:
     from ftcgym.benchmark.outputs import OutputFolder
     from ftcgym.benchmark.sweep import load_config
 
-    try:
-        config = load_config(args.config).select(args.sets, args.episodes, args.env_kwargs)
-    except ValueError as error:
-        raise SystemExit(f"ftcgym sweep: {error}") from None
+    config = load_config(args.config).select(args.sets, args.episodes, args.env_kwargs)
     out = args.out or os.path.join("sweep_out", config.name)
     with OutputFolder(out):  # held from the check of what the folder holds to the last report file
         return sweep(args, argv, config, out)
@@ -59,8 +56,6 @@ def sweep(args, argv: list[str], config, out: str) -> int:
         rows = run_sweep(config, out, args.backend, args.workers or os.cpu_count() or 1, args.resume,
                          progress=args.progress, ray_address=args.ray_address, chunk=args.chunk,
                          retries=args.retries)
-    except ValueError as error:
-        raise SystemExit(f"ftcgym sweep: {error}") from None
     except EpisodesFailed as error:
         raise SystemExit(f"ftcgym sweep: {error}\nFinished episodes are kept in {out}; "
                          f"rerun with --resume.") from None

@@ -7,6 +7,7 @@ import json
 from ftcgym.fdd.false_alarm import TAILS
 
 from .airdata_study import add_study_options
+from .common import scenario_name
 
 
 def add_parser(subparsers) -> None:
@@ -15,7 +16,7 @@ def add_parser(subparsers) -> None:
         description="From fault-free airdata_ekf signals (flown, or --load), print each criterion's false-"
                     "detection probability per flight hour (001 eq. 40-41), the autocorrelation check of 001 "
                     "Fig. 4 and the threshold that meets --target.")
-    parser.add_argument("--scenario", default="qp-no-fault-long", metavar="NAME",
+    parser.add_argument("--scenario", default="qp-no-fault-long", metavar="NAME", type=scenario_name,
                         help="fault-free airdata_ekf scenario to fly (default: qp-no-fault-long)")
     add_study_options(parser, episodes=4)
     parser.add_argument("--target", type=float, default=1e-3, metavar="P",

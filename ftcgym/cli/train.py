@@ -24,7 +24,7 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--total-steps", type=non_negative_int, metavar="N",
                         help="env steps to train for after any pre-training (default: the config's n_timesteps; "
                              "0 with a `pretrain` section: imitation only)")
-    parser.add_argument("--seed", type=int, metavar="S", help="seed (default: the config's, else 0)")
+    parser.add_argument("--seed", type=non_negative_int, metavar="S", help="seed (default: the config's, else 0)")
     parser.add_argument("--out", metavar="DIR", help="output directory (default: train_out/<task>-<algo>-seed<S>)")
     parser.add_argument("--init-from", metavar="MODEL",
                         help="start from a saved model (a training output folder or .zip, e.g. a shipped policy's "
@@ -36,10 +36,7 @@ def add_parser(subparsers) -> None:
 
 def run(args, argv: list[str]) -> int:
     from ftcgym.training.config import load_config
-    try:
-        config = load_config(args.config, args.algo, args.n_envs, args.total_steps, args.seed)
-    except ValueError as error:
-        raise SystemExit(f"ftcgym train: {error}") from None
+    config = load_config(args.config, args.algo, args.n_envs, args.total_steps, args.seed)
     from ftcgym.training.train import train
 
     out = args.out or os.path.join("train_out", f"{config.task}-{config.algo}-seed{config.seed}")

@@ -26,7 +26,7 @@ import copy
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-import yaml
+from ftcgym.benchmark.sweep import read_yaml
 
 CONFIG_DIR = Path(__file__).with_name("configs")
 ALGOS = ("PPO", "SAC")
@@ -84,7 +84,7 @@ def load_config(name_or_path: str, algo: str | None = None, n_envs: int | None =
                 total_steps: int | None = None, seed: int | None = None) -> TrainConfig:
     """The run described by a config file (or built-in task name), with command-line overrides."""
     path = config_path(name_or_path)
-    document = yaml.safe_load(path.read_text())
+    document = read_yaml(path)
     if not isinstance(document, dict) or len(document) != 1:
         raise ValueError(f"config {path}: expected one top-level key, the task name")
     (task, body), = document.items()

@@ -1,0 +1,51 @@
+"""What a user gets wrong on the command line ends in one line naming it and exit status 2, never a traceback."""
+import pytest
+
+from ftcgym.cli import main
+
+
+def run_cli(argv, capsys) -> tuple[int, list[str]]:
+    try:
+        status = main(argv)
+    except SystemExit as stop:          # argparse's usage errors
+        status = stop.code
+    return status, [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+
+
+@pytest.fixture()
+def files(tmp_path):
+    (tmp_path / "broken.yaml").write_text("name: x\nscenarios: [1, 2\n")
+    (tmp_path / "binary.yaml").write_bytes(b"\xff\xfe\x00garbage")
+    (tmp_path / "model.zip").write_text("not a zip")
+    return tmp_path
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (["bench", "--seed", "-3"], "argument --seed: expected an integer >= 0, got '-3'"),
+    (["bench", "--episodes", "0"], "argument --episodes: expected an integer >= 1, got '0'"),
+    (["bench", "--scenario", "quad-rotor-loss-hover", "--detector-kwargs", '{"bad": 1}', "--out", "{tmp}/o"],
+     "ftcgym bench: scenario 'quad-rotor-loss-hover': loe_kalman: unknown field(s) ['bad']"),
+    (["bench", "--scenario", "quad-hover", "--env-kwargs", '{"physics_hz": 1e7}', "--out", "{tmp}/o"],
+     "ftcgym bench: scenario 'quad-hover': physics_hz: must be in [50, 20000], got 10000000.0"),
+    (["bench", "--scenario", "quad-hover", "--out", "/dev/null/x"], "ftcgym bench: [Errno 20] Not a directory"),
+    (["sweep", "{tmp}/broken.yaml"], "broken.yaml: not valid YAML at line 3, column 1"),
+    (["sweep", "{tmp}/binary.yaml"], "binary.yaml: not a text file"),
+    (["sweep", "{tmp}/missing.yaml"], "ftcgym sweep: config: no file"),
+    (["train", "--config", "{tmp}/broken.yaml"], "broken.yaml: not valid YAML at line 3, column 1"),
+    (["evaluate", "{tmp}/model.zip"], "model.zip: not a Stable-Baselines3 model (.zip)"),
+    (["evaluate", "{tmp}/nothing.zip"], "ftcgym evaluate: model: no file"),
+    (["airdata-study", "--scenario", "nope"], "argument --scenario: scenario: unknown name 'nope'"),
+    (["thresholds", "--scenario", "nope"], "argument --scenario: scenario: unknown name 'nope'"),
+    (["perf", "--steps", "-5"], "argument --steps: expected an integer >= 1, got '-5'"),
+])
+def test_user_errors_end_in_one_line_and_status_2(argv, expected, files, capsys):
+    status, lines = run_cli([arg.replace("{tmp}", str(files)) for arg in argv], capsys)
+    assert status == 2
+    assert len(lines) == 1 or lines[0].startswith("usage:")      # argparse prints its usage line first
+    assert expected in lines[-1] and "Traceback" not in "\n".join(lines)
+
+
+def test_the_traceback_is_there_when_asked(files, monkeypatch):
+    monkeypatch.setenv("FTCGYM_TRACEBACK", "1")
+    with pytest.raises(ValueError, match="not valid YAML"):
+        main(["sweep", str(files / "broken.yaml")])
