@@ -49,3 +49,13 @@ def test_the_traceback_is_there_when_asked(files, monkeypatch):
     monkeypatch.setenv("FTCGYM_TRACEBACK", "1")
     with pytest.raises(ValueError, match="not valid YAML"):
         main(["sweep", str(files / "broken.yaml")])
+
+
+def test_every_option_of_every_command_has_a_help_text():
+    from ftcgym.cli import build_parser
+    parser = build_parser()
+    commands = next(a for a in parser._actions if a.dest == "command").choices
+    missing = [f"{name} {'/'.join(action.option_strings) or action.dest}"
+               for name, sub in commands.items() for action in sub._actions
+               if action.help is None and action.dest != "help"]
+    assert missing == []

@@ -133,6 +133,12 @@ def test_a_sensor_fault_is_inactive_once_its_duration_has_ended():
     (Q, {"task": ["hover"]}, "task: unknown task ['hover']"),
     (Q, {"vehicle": ["bebop2"]}, "vehicle: unknown parameter set ['bebop2']"),
     (AUTOPILOT, {"task": "square"}, "task: the autopilot flies a mission; accepted: 'mission'"),
+    (Q, {"task": "mission"}, "task: QuadrotorEnv does not fly 'mission'; accepted: ['hover', 'square']"),
+    (Q, {"vehical": "bebop2"}, "gym.make keyword: unknown ['vehical'] (did you mean 'vehicle'?); accepted: ['agent_hz'"),
+    (AUTOPILOT, {"wnd": {}}, "gym.make keyword: unknown ['wnd'] (did you mean 'wind'?)"),
+    (Q, {"faults": [{"kind": "loe", "target": 0, "time": 40}]},
+     "faults[0].time: 40.0 s is not before the episode's end (max_episode_seconds = 30)"),
+    (Q, {"faults": "random:rotor_loss", "max_episode_seconds": 3}, "faults[0].time: (2.0, 5.0) s is not before"),
 ])
 def test_other_inputs_fail_at_make_naming_the_field(env_id, kwargs, message):
     with pytest.raises(ValueError, match=re.escape(message)):

@@ -88,6 +88,9 @@ def test_rotor_loss_is_detected_and_isolated_within_000_bounds(seed, rotor):
     status = info["fdd"]["loe_kalman"]
     assert status["isolated"] == rotor
     assert 0.028 <= status["alarm_time"] - 3.0 <= 0.132
+    # JSON-friendly: plain bools, ints and floats (arrays for vectors), no numpy scalars
+    assert {type(v).__name__ for v in status.values()} <= {"bool", "int", "float", "list", "ndarray", "NoneType"}
+    assert not any(isinstance(v, np.generic) for v in status.values())
 
 
 def test_no_false_alarm_in_a_fault_free_manoeuvring_flight():

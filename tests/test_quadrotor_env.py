@@ -142,7 +142,7 @@ def test_sensor_faults(kind):
     ([{"kind": "rotor_loss", "target": 4}], "faults[0].target"),
     ([{"kind": "rotor_loss", "target": 1, "time": -1}], "faults[0].time"),
     ([{"kind": "rotor_loss", "target": 1, "time": float("nan")}], "faults[0].time"),
-    ([{"kind": "rotor_loss", "target": 1, "onset": 2}], "faults[0]: unknown key"),
+    ([{"kind": "rotor_loss", "target": 1, "onset": 2}], "faults[0] key: unknown ['onset']"),
     ([{"kind": "loe", "target": 1, "magnitude": 1.5}], "faults[0].magnitude"),
     ([{"kind": "sensor_bias", "target": "compass"}], "faults[0].target"),
     ("random:icing", "faults[0]"),

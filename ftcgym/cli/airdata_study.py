@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from .common import json_object, non_negative_int, positive_int, scenario_name
+from .common import json_object, non_negative_int, policy_name, positive_int, scenario_name
 
 
 def add_parser(subparsers) -> None:
@@ -21,10 +21,13 @@ def add_parser(subparsers) -> None:
 
 def add_study_options(parser, episodes: int) -> None:
     """The options `airdata-study` and `thresholds` share."""
-    parser.add_argument("--episodes", type=positive_int, default=episodes, metavar="N")
+    parser.add_argument("--episodes", type=positive_int, default=episodes, metavar="N",
+                        help=f"episodes to fly (default: {episodes})")
     parser.add_argument("--seed", type=non_negative_int, default=0, metavar="S",
                         help="run seed, as ftcgym bench --seed")
-    parser.add_argument("--policy", default="oracle-airspeed", metavar="NAME")
+    parser.add_argument("--policy", default="oracle-airspeed", metavar="NAME", type=policy_name,
+                        help="policy flying the episodes (default: oracle-airspeed, which does not react to the "
+                             "pitot, as in 001's offline injection)")
     parser.add_argument("--env-kwargs", type=json_object, default=None, metavar="JSON",
                         help="merged into the scenario's env kwargs")
     parser.add_argument("--detector-kwargs", type=json_object, default=None, metavar="JSON",

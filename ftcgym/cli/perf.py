@@ -40,7 +40,8 @@ def add_parser(subparsers) -> None:
     parser = subparsers.add_parser("perf", help="measure simulation speed and memory",
                                    description=__doc__.split("\n\n")[1].replace("\n", " "))
     parser.add_argument("--steps", type=positive_int, default=20000, help="env steps per case (default 20000)")
-    parser.add_argument("--seed", type=non_negative_int, default=0, metavar="S")
+    parser.add_argument("--seed", type=non_negative_int, default=0, metavar="S",
+                        help="seed of the episodes and random actions (default: 0)")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     parser.set_defaults(run=run)
 

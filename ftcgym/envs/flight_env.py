@@ -10,7 +10,7 @@ import sys
 import gymnasium as gym
 import numpy as np
 
-from ..models.checks import POSITIVE, Range, number, real_array
+from ..models.checks import POSITIVE, Range, no_unknown, number, real_array
 from ..models.constants import GRAVITY
 from ..models.tasks import make_task
 from ..models.wind import DrydenWind
@@ -30,6 +30,7 @@ class FlightEnv(gym.Env):
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 30}
     RESET_OPTIONS = ("faults", "wind", "vehicle_overrides")
+    TASKS = ("hover", "square", "mission")    # the tasks a vehicle flies (`tasks.TASKS` names)
     BOUNDS = 100.0        # m, half-width of the flight box
     CEILING = 100.0       # m
     MAX_SPEED = 100.0     # m/s, observation bound on velocities
@@ -37,10 +38,11 @@ class FlightEnv(gym.Env):
     CRASH_TILT = np.deg2rad(60.0)   # rad, ground contact more tilted than this is a crash
 
     def _setup(self, vehicle, vehicle_overrides, wind, faults, task, max_episode_seconds, physics_hz, agent_hz,
-               render_mode) -> None:
+               render_mode, unknown: dict) -> None:
         """Validate the shared keyword arguments and build the task, wind and faults (`_open_world` follows,
         once the subclass has validated the rest, so a failed make holds no PyBullet client)."""
         self.world = None
+        no_unknown(unknown, KEYWORDS, "gym.make keyword")
         self.vehicle = vehicle
         self.params = self._configured_params = self._make_params(vehicle, vehicle_overrides)
         self.physics_hz, self.agent_hz = check_rates(physics_hz, agent_hz)
@@ -53,7 +55,7 @@ class FlightEnv(gym.Env):
         self.task = self._check_task(make_task(task))
         self.wind = self._configured_wind = DrydenWind.from_config(wind, self.dt)
         self.fault_specs = self._configured_faults = self._parse_faults(faults)
-        self._check_payloads(self.params, self.fault_specs)
+        self._check_faults(self.params, self.fault_specs)
         self._gravity = np.array([0.0, 0.0, GRAVITY])
 
     def _open_world(self) -> None:
@@ -66,7 +68,9 @@ class FlightEnv(gym.Env):
         self._size_body()
 
     def _check_task(self, task):
-        """The task's set-points must lie inside the flight box and the observation bounds."""
+        """A task this vehicle flies, whose set-points lie inside the flight box and the observation bounds."""
+        if task.name not in self.TASKS:
+            raise ValueError(f"task: {type(self).__name__} does not fly {task.name!r}; accepted: {list(self.TASKS)}")
         extent = task.extent()
         limits = {"horizontal": self.BOUNDS, "altitude": self.CEILING, "speed": self.MAX_SPEED}
         for key, value in extent.items():
@@ -76,8 +80,14 @@ class FlightEnv(gym.Env):
                                  f"altitude <= {self.CEILING:g} m)")
         return task
 
-    def _check_payloads(self, params, specs) -> None:
-        """The payload faults (a drop is negative) must keep the mass above zero at every time."""
+    def _check_faults(self, params, specs) -> None:
+        """Every fault must begin before the episode ends, and the payloads (a drop is negative) must keep the
+        mass above zero at every time."""
+        for index, spec in enumerate(specs):
+            latest = max(spec.time) if isinstance(spec.time, tuple) else spec.time
+            if latest >= self.max_episode_seconds:
+                raise ValueError(f"faults[{index}].time: {spec.time!r} s is not before the episode's end "
+                                 f"(max_episode_seconds = {self.max_episode_seconds:g}); the fault would never act")
         lightest = params.mass + sum(min(s.magnitude, 0.0) for s in specs if s.kind == "payload")
         if lightest <= 0.0:
             raise ValueError(f"faults: the payloads take the mass to {lightest:g} kg (vehicle {params.mass:g} kg); "
@@ -90,15 +100,13 @@ class FlightEnv(gym.Env):
         if options is not None and not isinstance(options, dict):
             raise ValueError(f"reset options: expected a dict with keys {list(self.RESET_OPTIONS)}, got {options!r}")
         options = dict(options or {})
-        unknown = sorted(set(options) - set(self.RESET_OPTIONS), key=str)
-        if unknown:
-            raise ValueError(f"reset options: unknown key(s) {unknown}; accepted: {list(self.RESET_OPTIONS)}")
+        no_unknown(options, self.RESET_OPTIONS, "reset options key")
         try:
             params = (self._make_params(self.vehicle, options["vehicle_overrides"]) if "vehicle_overrides" in options
                       else self._configured_params)
             self.wind = DrydenWind.from_config(options["wind"], self.dt) if "wind" in options else self._configured_wind
             self.fault_specs = self._parse_faults(options["faults"]) if "faults" in options else self._configured_faults
-            self._check_payloads(params, self.fault_specs)
+            self._check_faults(params, self.fault_specs)
         except ValueError as error:
             raise ValueError(f"reset options: {error}") from None
         if params is not self.params:
@@ -218,6 +226,9 @@ def check_action(action, low, high, what: str) -> np.ndarray:
     return np.minimum(np.maximum(a, low), high)
 
 
+#: the keyword arguments of the simulator envs (`gym.make`)
+KEYWORDS = ("vehicle", "vehicle_overrides", "wind", "faults", "task", "max_episode_seconds", "physics_hz", "agent_hz",
+            "sensors", "render_mode")
 PHYSICS_HZ = Range(50.0, 20_000.0)   # Hz: coarser steps miss the motor lag, finer ones add cost, not accuracy
 MAX_SUBSTEPS = 1000           # physics steps per agent step
 

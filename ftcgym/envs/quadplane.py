@@ -53,14 +53,15 @@ class QuadPlaneEnv(FlightEnv):
     """Quad-plane with actuator-level actions; see the module docstring for spaces, reward and termination."""
 
     controls = "actuators"                 # what the action commands
+    TASKS = ("mission", "hover")
     BOUNDS, CEILING = 2000.0, 1000.0   # m
     CRASH_SPEED = 3.0                  # m/s, ground contact faster than this is an impact (a 6.5 kg airframe)
 
     def __init__(self, vehicle: str = "vsqp", vehicle_overrides: dict | None = None, wind: dict | None = None,
                  faults=None, task="mission", max_episode_seconds: float = 240.0, physics_hz: float = 500.0,
-                 agent_hz: float = 100.0, sensors: dict | None = None, render_mode: str | None = None):
+                 agent_hz: float = 100.0, sensors: dict | None = None, render_mode: str | None = None, **unknown):
         self._setup(vehicle, vehicle_overrides, wind, faults, task, max_episode_seconds, physics_hz, agent_hz,
-                    render_mode)
+                    render_mode, unknown)
         self._sensor_config = QuadPlaneSensorConfig.from_overrides(sensors)
         self._surface_alpha = 1.0 - math.exp(-self.dt / SURFACE_TIME_CONSTANT)
         self.observation_space = self._make_observation_space(self.params)

@@ -42,13 +42,14 @@ class QuadrotorEnv(FlightEnv):
     """Quadrotor with motor-level actions; see the module docstring for spaces, reward and termination."""
 
     controls = "rotors"                 # what the action commands
+    TASKS = ("hover", "square")
     BOUNDS = CEILING = BOUNDS
 
     def __init__(self, vehicle: str = "bebop2", vehicle_overrides: dict | None = None, wind: dict | None = None,
                  faults=None, task="hover", max_episode_seconds: float = 30.0, physics_hz: float = 500.0,
-                 agent_hz: float = 500.0, sensors: dict | None = None, render_mode: str | None = None):
+                 agent_hz: float = 500.0, sensors: dict | None = None, render_mode: str | None = None, **unknown):
         self._setup(vehicle, vehicle_overrides, wind, faults, task, max_episode_seconds, physics_hz, agent_hz,
-                    render_mode)
+                    render_mode, unknown)
         self._sensor_config = SensorConfig.from_overrides(sensors)
         self.observation_space = self._make_observation_space(self.params)
         self._limits = {key: (box.low, box.high) for key, box in self.observation_space.spaces.items()}

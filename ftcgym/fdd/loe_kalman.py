@@ -130,7 +130,7 @@ class LoeKalmanDetector:
         previous, self._previous_rates = self._previous_rates, rates
         omega2 = omega_f * omega_f
         if not self.armed:
-            self.armed = abs(self.B[2] @ omega2) >= self.takeoff_fraction * GRAVITY
+            self.armed = bool(abs(self.B[2] @ omega2) >= self.takeoff_fraction * GRAVITY)
         if previous is None or not self.armed:
             return
         z = np.array((*(rates - previous) / self.dt, a_z))          # eq. (10), (13)

@@ -7,6 +7,7 @@ at `gym.make` or `reset`, never later in the physics. The ranges of the paramete
 """
 from __future__ import annotations
 
+import difflib
 import math
 from dataclasses import dataclass
 
@@ -38,6 +39,15 @@ FINITE = Range()
 POSITIVE = Range(0.0, open_low=True)
 NON_NEGATIVE = Range(0.0)
 FRACTION = Range(0.0, 1.0)
+
+
+def no_unknown(given, accepted, what: str) -> None:
+    """ValueError if `given` (names) holds any not in `accepted`, with the closest accepted name and the list."""
+    unknown = sorted(set(given) - set(accepted), key=str)
+    if unknown:
+        close = difflib.get_close_matches(str(unknown[0]), [str(name) for name in accepted], n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        raise ValueError(f"{what}: unknown {unknown}{hint}; accepted: {sorted(accepted, key=str)}")
 
 
 def number(value, field: str, accepted: Range = FINITE) -> float:

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .checks import FINITE, POSITIVE, Range, number, numbers
+from .checks import FINITE, POSITIVE, Range, no_unknown, number, numbers
 
 ROTOR_KINDS = ("rotor_loss", "loe")
 SENSOR_KINDS = ("sensor_bias", "sensor_stuck", "sensor_dropout")
@@ -100,9 +100,7 @@ def _parse_one(spec, index: int, n_rotors: int, sensors, kinds) -> FaultSpec:
         spec = spec.to_dict()
     if not isinstance(spec, dict):
         raise ValueError(f"{where}: expected a dict with keys {list(_FIELDS)}, got {type(spec).__name__}")
-    unknown = sorted(set(spec) - set(_FIELDS), key=str)
-    if unknown:
-        raise ValueError(f"{where}: unknown key(s) {unknown}; accepted: {list(_FIELDS)}")
+    no_unknown(spec, _FIELDS, f"{where} key")
     kind = spec.get("kind")
     if not isinstance(kind, str) or kind not in kinds:
         raise ValueError(f"{where}.kind: {kind!r} is not a fault kind of this vehicle; accepted: {list(kinds)}")

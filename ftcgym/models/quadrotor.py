@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .checks import NON_NEGATIVE, POSITIVE, Range, numbers
+from .checks import NON_NEGATIVE, POSITIVE, Range, no_unknown, numbers
 from .constants import GRAVITY
 
 #: yaw reaction-torque sign per rotor (004 eq. 7; docs/concepts.md, 'Rotor numbering'): + means +z (FRD)
@@ -176,9 +176,7 @@ def named_params(catalogue: dict, vehicle: str, overrides: dict | None, ranges: 
         return params
     if not isinstance(overrides, dict):
         raise ValueError(f"vehicle_overrides: expected a dict of field -> value, got {overrides!r}")
-    unknown = sorted(set(overrides) - set(ranges), key=str)
-    if unknown:
-        raise ValueError(f"vehicle_overrides: unknown field(s) {unknown}; accepted: {sorted(ranges)}")
+    no_unknown(overrides, ranges, "vehicle_overrides field")
     clean = {}
     for key, value in overrides.items():
         arr = numbers(value, f"vehicle_overrides[{key!r}]", np.shape(getattr(params, key)), ranges[key])

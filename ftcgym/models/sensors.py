@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .checks import Range, number
+from .checks import Range, no_unknown, number
 from .constants import GRAVITY
 
 GYRO_LIMIT = np.deg2rad(2000.0)   # rad/s, MPU-6050 full scale (000 Fig. 5)
@@ -50,9 +50,7 @@ class SensorConfig:
         if not isinstance(overrides, dict):
             raise ValueError(f"sensors: expected a dict of field -> value, got {overrides!r}")
         names = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(overrides) - names, key=str)
-        if unknown:
-            raise ValueError(f"sensors: unknown field(s) {unknown}; accepted: {sorted(names)}")
+        no_unknown(overrides, names, "sensors field")
         return cls(**{k: number(v, f"sensors[{k!r}]", _RATE if k.endswith("_hz") else _LEVEL)
                       for k, v in overrides.items()})
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from .checks import FINITE, NON_NEGATIVE, POSITIVE, Range, number
+from .checks import FINITE, NON_NEGATIVE, POSITIVE, Range, no_unknown, number
 
 # 004 Sec. 5.1 excitation as sums of sines: sin(a t) cos(b t) = (sin((a+b)t) + sin((a-b)t)) / 2.
 _EXCITATION_PAIRS = ((2.51, 3.14), (3.14, 4.19), (4.19, 6.28))
@@ -139,9 +139,7 @@ def make_task(task) -> HoverTask | SquareTask | MissionTask:
         raise ValueError(f"task: unknown task {task!r}; accepted: {sorted(TASKS)} (or a dict with 'name')")
     cls = TASKS[task]
     accepted = {f.name for f in fields(cls)}
-    unknown = set(options) - accepted
-    if unknown:
-        raise ValueError(f"task: unknown option(s) {sorted(unknown)} for {task!r}; accepted: {sorted(accepted)}")
+    no_unknown(options, accepted, f"task option of {task!r}")
     for key, value in options.items():
         if isinstance(getattr(cls, key, None), bool):
             if not isinstance(value, bool):

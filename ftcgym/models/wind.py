@@ -34,7 +34,7 @@ import math
 import numpy as np
 import scipy.linalg
 
-from .checks import FINITE, POSITIVE, Range, number, numbers
+from .checks import FINITE, POSITIVE, Range, no_unknown, number, numbers
 
 # 004 Sec. 5.1 ("low altitude and light turbulence", h = 8 m). "moderate" and "severe" are our
 # choice: light sigmas times 2 and 4, lengths kept (MIL-F-8785C's low-altitude model scales all
@@ -180,9 +180,7 @@ class DrydenWind:
             config = {}
         if not isinstance(config, dict):
             raise ValueError(f"wind config: expected a dict with keys {list(CONFIG_KEYS)} or None, got {config!r}")
-        unknown = sorted(set(config) - set(CONFIG_KEYS), key=str)
-        if unknown:
-            raise ValueError(f"wind config: unknown key(s) {unknown}; accepted keys: {list(CONFIG_KEYS)}")
+        no_unknown(config, CONFIG_KEYS, "wind config key")
         return cls(dt, **config)
 
     def reset(self, rng: np.random.Generator) -> np.ndarray:
