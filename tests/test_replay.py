@@ -4,6 +4,7 @@ RflyMAD ground truth (data/README.md): motor 1 (output 0) fails at 33.06 s in Te
 and at 19.16 s in TestCase_2_2000000001 (HIL).
 """
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -19,13 +20,15 @@ from ftcgym.fdd.logs import (
     FTCGYM_ROTOR_ORDER,
     PX4_QUAD_X_ORDER,
     FlightLog,
+    LogError,
     first_order_lag,
     hold,
     pwm_to_rotor_speed,
     read_csv,
+    read_log,
     read_npz,
 )
-from ftcgym.fdd.recording import RecordingWrapper
+from ftcgym.fdd.recording import RecordingWrapper, _write_csv
 from ftcgym.fdd.replay import ROTOR_SIGNS, identify_effectiveness, make_detector, replay
 
 REPO = Path(__file__).resolve().parents[1]
@@ -298,3 +301,216 @@ def test_cli_table_and_errors(recording, capsys):
     assert missing.out == "" and "no_such_log.ulg" in missing.err
     assert main(["replay", str(path), "--detector", "nope"]) == 2
     assert "cannot replay a log; replay sets up: loe_kalman" in capsys.readouterr().err
+
+
+# ----------------------------------------------------------------------------------------- logs that cannot be read
+
+def small_recording(n=20):
+    """A valid recording of `n` samples at 500 Hz: level hover, every rotor at 500 rad/s."""
+    time = np.arange(n) * 0.002
+    readings = {"gyro": np.zeros((n, 3)), "accel": np.tile([0.0, 0.0, -9.81], (n, 1)),
+                "rotor_speed": np.full((n, 4), 500.0)}
+    commands = np.vstack([np.full((1, 4), np.nan), np.full((n - 1, 4), 0.5)])
+    return time, readings, commands, {"actuator_order": FTCGYM_ROTOR_ORDER, "fault_time": None}
+
+
+def csv_lines(**edits):
+    """The small recording as CSV lines (metadata, header, rows), with `edits` applied (see CSV_CASES)."""
+    time, readings, commands, metadata = small_recording()
+    for key in edits.get("drop", ()):
+        readings.pop(key, None)
+        time = None if key == "time" else time
+    columns = {"time": time[:, None]} if time is not None else {}
+    columns.update({**readings, "command": commands})
+    header = [name if name == "time" else f"{name}[{i}]" for name, block in columns.items()
+              for i in range(block.shape[1])]
+    rows = [",".join(repr(float(v)) for v in row) for row in np.hstack(list(columns.values()))]
+    return [f"# metadata {json.dumps(metadata)}", ",".join(header), *rows]
+
+
+def write_csv_case(path, rows=None, swap=None, cell=None, short_row=None, **edits):
+    """rows: keep that many data rows; swap: exchange two rows' times; cell: (row, column, text) replaced;
+    short_row: (row, fields) keeps only that row's first fields."""
+    lines = csv_lines(**edits)
+    table = [line.split(",") for line in lines[2:]]
+    if swap:
+        (a, b), t = swap, [row[0] for row in table]
+        table[a][0], table[b][0] = t[b], t[a]
+    if cell:
+        table[cell[0]][cell[1]] = cell[2]
+    if short_row:
+        table[short_row[0]] = table[short_row[0]][:short_row[1]]
+    body = [",".join(row) for row in table][:rows]
+    path.write_text("\n".join([*lines[:2], *body]) + "\n")
+
+
+def write_npz_case(path, drop=(), **replace):
+    time, readings, commands, metadata = small_recording()
+    arrays = {"time": time, "commands": commands, "metadata": np.array(json.dumps(metadata)),
+              **{f"reading/{key}": value for key, value in readings.items()}}
+    arrays.update(replace)
+    np.savez(path, **{name: value for name, value in arrays.items() if name not in drop})
+
+
+def real_ulog_bytes(name=HIL) -> bytes:
+    if not (RFLYMAD / name).exists():
+        pytest.skip("RflyMAD logs not available")
+    return (RFLYMAD / name).read_bytes()
+
+
+def ulog_without_sensors(path):
+    pytest.importorskip("pyulog")
+    from pyulog import ULog
+    real_ulog_bytes()
+    ULog(str(RFLYMAD / HIL), ["actuator_outputs", "vehicle_attitude"]).write_ulog(str(path))
+
+
+def damaged_ulog(path):
+    data = bytearray(real_ulog_bytes())
+    data[16 + 2] = 0          # the first message's type byte: 0 is no message type
+    path.write_bytes(bytes(data))
+
+
+RANDOM = np.random.default_rng(35).integers(0, 256, 4096, dtype=np.uint8).tobytes()
+
+#: file name -> (how to make it in a folder, a word the one-line message must contain)
+CORRUPT = {
+    "random.ulg": (lambda p: p.write_bytes(RANDOM), "not a ULog file (bad magic"),
+    "empty.ulg": (lambda p: p.write_bytes(b""), "empty file"),
+    "truncated.ulg": (lambda p: p.write_bytes(real_ulog_bytes()[:int(0.6 * len(real_ulog_bytes()))]),
+                      "truncated ULog (data ends mid-message"),
+    "header_cut.ulg": (lambda p: p.write_bytes(real_ulog_bytes()[:10]), "truncated ULog"),
+    "damaged.ulg": (damaged_ulog, "corrupt ULog (damaged message at byte 16"),
+    "no_sensors.ulg": (ulog_without_sensors, "missing topic 'sensor_combined'"),
+    "random.npz": (lambda p: p.write_bytes(RANDOM), "not an NPZ archive"),
+    "empty.npz": (lambda p: p.write_bytes(b""), "empty file"),
+    "zip_cut.npz": (lambda p: (write_npz_case(p), p.write_bytes(p.read_bytes()[:300])), "unreadable NPZ archive"),
+    "no_time.npz": (lambda p: write_npz_case(p, drop=("time",)), "missing array 'time'"),
+    "no_gyro.npz": (lambda p: write_npz_case(p, drop=("reading/gyro",)), "missing array 'reading/gyro'"),
+    "short_gyro.npz": (lambda p: write_npz_case(p, **{"reading/gyro": np.zeros((19, 3))}), "has shape (19, 3)"),
+    "text_time.npz": (lambda p: write_npz_case(p, time=np.array(["a"] * 20)), "expected numbers"),
+    "random.csv": (lambda p: p.write_bytes(RANDOM), "not a text file"),
+    "empty.csv": (lambda p: p.write_bytes(b""), "empty file"),
+    "no_metadata.csv": (lambda p: p.write_text("time,gyro[0]\n0,0\n"), "not an ftcgym recording"),
+    "bad_metadata.csv": (lambda p: p.write_text("# metadata {oops\ntime\n"), "metadata is not valid JSON"),
+    **{f"no_{key}.csv": (lambda p, key=key: write_csv_case(p, drop=(key,)), f"missing column '{key}'")
+       for key in ("time", "gyro", "accel", "rotor_speed")},
+    "header_only.csv": (lambda p: write_csv_case(p, rows=0), "too few samples (0"),
+    "one_row.csv": (lambda p: write_csv_case(p, rows=1), "too few samples (1"),
+    "out_of_order.csv": (lambda p: write_csv_case(p, swap=(5, 6)), "time is not increasing at line 9"),
+    "nan.csv": (lambda p: write_csv_case(p, cell=(4, 2, "nan")), "non-finite value nan in column 'gyro' at line 7"),
+    "text.csv": (lambda p: write_csv_case(p, cell=(4, 2, "abc")), "line 7, column 'gyro[1]': 'abc' is not a number"),
+    "ragged.csv": (lambda p: write_csv_case(p, short_row=(4, 2)), "line 7 has 2 fields"),
+    "flight.txt": (lambda p: p.write_text("time\n"), "unknown log type '.txt'"),
+    "missing.csv": (lambda p: None, "no such file"),
+    "folder.ulg": (lambda p: p.mkdir(), "is a directory"),
+}
+
+
+def replay_in_process(path, capsys) -> tuple[int, list[str]]:
+    from ftcgym.cli import main
+    status = main(["replay", str(path), "--detector", "loe_kalman"])
+    captured = capsys.readouterr()
+    assert "Traceback" not in captured.err
+    return status, [line for line in captured.err.splitlines() if line.strip()]
+
+
+def test_the_small_recordings_are_valid_before_they_are_damaged(tmp_path, capsys):
+    write_csv_case(tmp_path / "ok.csv")
+    write_npz_case(tmp_path / "ok.npz")
+    for name in ("ok.csv", "ok.npz"):
+        assert replay_in_process(tmp_path / name, capsys) == (0, [])
+
+
+@pytest.mark.parametrize("name", CORRUPT)
+def test_a_log_that_cannot_be_read_exits_2_with_one_line_naming_the_file_and_the_problem(name, tmp_path, capsys):
+    make, problem = CORRUPT[name]
+    path = tmp_path / name
+    make(path)
+    status, lines = replay_in_process(path, capsys)
+    assert status == 2
+    assert len(lines) == 1, lines
+    assert lines[0].startswith(f"ftcgym replay: {path}: ") and problem in lines[0]
+    with pytest.raises(LogError) as error:             # a library user gets the same message, as a ValueError
+        read_log(path)
+    assert isinstance(error.value, ValueError) and lines[0] == f"ftcgym replay: {error.value}"
+
+
+def test_a_recording_for_another_rotor_count_is_refused_by_loe_kalman(tmp_path, capsys):
+    path = tmp_path / "hexa.npz"
+    write_npz_case(path, **{"reading/rotor_speed": np.full((20, 6), 500.0)})
+    assert replay_in_process(path, capsys) == (2, [f"ftcgym replay: {path}: 'rotor_speed' has 6 columns; "
+                                                   f"loe_kalman models a quadrotor (4 rotors)"])
+
+
+def test_a_truncated_ulog_exits_2_with_one_line_and_no_traceback_end_to_end(tmp_path):
+    path = tmp_path / "cut.ulg"
+    data = real_ulog_bytes()
+    path.write_bytes(data[:int(0.6 * len(data))])
+    done = subprocess.run([sys.executable, "-m", "ftcgym.cli", "replay", str(path), "--detector", "loe_kalman"],
+                          capture_output=True, text=True, timeout=120, env={**os.environ, "PYTHONPATH": str(REPO)})
+    assert done.returncode == 2 and done.stdout == ""
+    assert done.stderr.count("\n") == 1 and "Traceback" not in done.stderr
+    assert f"{path}: truncated ULog (data ends mid-message at byte {path.stat().st_size}" in done.stderr
+
+
+# ----------------------------------------------------------------------------------------- fuzz
+
+def ulog_message_ends(data: bytes) -> set:
+    """Byte offsets where a ULog message ends (16-byte header, then frames of uint16 size, uint8 type, payload)."""
+    ends, position = set(), 16
+    while position + 3 <= len(data):
+        position += 3 + int.from_bytes(data[position:position + 2], "little")
+        ends.add(position)
+    return ends
+
+
+def csv_cut_is_detectable(text: str, cut: int) -> bool:
+    """A CSV cut inside the metadata or header line, or leaving a data line short of fields. Cut at a line end
+    or inside a line's last field, it is a shorter valid recording, which nothing can tell from a whole one."""
+    done, partial = text[:cut].rsplit("\n", 1) if "\n" in text[:cut] else ("", text[:cut])
+    header = text.split("\n")[1]
+    return done.count("\n") < 1 or (partial != "" and partial.count(",") < header.count(","))
+
+
+@pytest.fixture(scope="module")
+def csv_recording(recording, tmp_path_factory) -> bytes:
+    log = read_npz(recording[0])
+    path = tmp_path_factory.mktemp("csv") / "flight.csv"
+    _write_csv(path, log.time, log.readings, log.commands, log.metadata)
+    return path.read_bytes()
+
+
+def assert_refused(path, capsys):
+    status, lines = replay_in_process(path, capsys)
+    assert status == 2 and len(lines) == 1 and path.name in lines[0], (path.stat().st_size, lines)
+
+
+def test_fuzz_random_bytes_are_refused(tmp_path, capsys):
+    rng = np.random.default_rng(0)
+    for i in range(10):
+        path = tmp_path / f"random{i}{('.ulg', '.npz', '.csv')[i % 3]}"
+        path.write_bytes(rng.integers(0, 256, int(rng.integers(0, 3000)), dtype=np.uint8).tobytes())
+        assert_refused(path, capsys)
+
+
+def test_fuzz_a_real_ulog_cut_anywhere_but_a_message_end_is_refused(tmp_path, capsys):
+    data = real_ulog_bytes()
+    ends, rng = ulog_message_ends(data), np.random.default_rng(1)
+    cuts = [int(cut) for cut in rng.integers(1, len(data), 12) if cut not in ends][:10]
+    assert len(cuts) == 10
+    for cut in cuts:
+        path = tmp_path / f"cut{cut}.ulg"
+        path.write_bytes(data[:cut])
+        assert_refused(path, capsys)
+
+
+def test_fuzz_a_real_csv_recording_cut_inside_a_field_is_refused(csv_recording, tmp_path, capsys):
+    text, rng = csv_recording.decode(), np.random.default_rng(2)
+    cuts = [int(cut) for cut in rng.integers(1, len(text), 40) if csv_cut_is_detectable(text, int(cut))][:10]
+    cuts += [int(rng.integers(1, text.index("\n")))]                    # and one inside the metadata line
+    assert len(cuts) == 11
+    for cut in cuts:
+        path = tmp_path / f"cut{cut}.csv"
+        path.write_text(text[:cut])
+        assert_refused(path, capsys)

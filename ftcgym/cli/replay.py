@@ -1,6 +1,9 @@
 """`ftcgym replay`: a fault detector run over a recorded flight log (`ftcgym.fdd.replay`)."""
 from __future__ import annotations
 
+import argparse
+import math
+
 
 def add_parser(subparsers) -> None:
     parser = subparsers.add_parser(
@@ -11,9 +14,20 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--detector", required=True, metavar="NAME",
                         help="detector to run; replay sets up loe_kalman for a log (others cannot replay yet)")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
-    parser.add_argument("--rate", type=float, default=250.0, metavar="HZ",
+    parser.add_argument("--rate", type=positive_rate, default=250.0, metavar="HZ",
                         help="rate a ULog is resampled to (default: 250); recordings keep their own")
     parser.set_defaults(run=run)
+
+
+def positive_rate(text: str) -> float:
+    """A finite rate > 0 in Hz."""
+    try:
+        rate = float(text)
+    except ValueError:
+        rate = math.nan
+    if not (math.isfinite(rate) and rate > 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number of Hz > 0, got {text!r}")
+    return rate
 
 
 def run(args, argv: list[str]) -> int:

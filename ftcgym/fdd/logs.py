@@ -17,11 +17,20 @@ Sec. 7.4 did for a prototype without RPM feedback:
   interpolation it never uses a command logged after the instant (SIL logs keep it at only 10 Hz).
 - a dead time and the motor's first-order lag (see `read_ulog`).
 IMU samples are interpolated linearly onto the grid (they sample continuous signals).
+
+Every reader refuses what it cannot replay with one `LogError` (a ValueError) naming the file and the problem:
+library failures are translated where the file is read, and `check_readings` holds the rules for the arrays.
 """
 from __future__ import annotations
 
+import contextlib
 import csv
+import io
 import json
+import math
+import struct
+import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -40,6 +49,30 @@ MOTOR_TIME_CONSTANT = 0.01         # s, see read_ulog
 ACTUATOR_DELAY = 0.024             # s, see read_ulog
 ULOG_TOPICS = ("sensor_combined", "actuator_outputs", "vehicle_attitude", "vehicle_local_position",
                "rfly_ctrl_lxl")
+ULOG_MAGIC = b"ULog\x01\x12\x35"   # first 7 bytes of every ULog; a version byte and the start time follow
+ULOG_HEADER_SIZE = 16
+#: readings every log must have -> their columns (None: any number, one per rotor); other keys are optional
+REQUIRED_READINGS = {"gyro": 3, "accel": 3, "rotor_speed": None}
+#: optional readings with a fixed width: replay reads them (take-off time) where they are logged
+SHAPED_READINGS = {"attitude": 4, "position": 3, "velocity": 3}
+MIN_SAMPLES = 2                    # two give the sample interval, which every detector steps with
+#: s, longest gap between two samples of a ULog topic: the RflyMAD logs' slowest topics (10 Hz) leave <= 0.21 s;
+#: a longer one is a dropout or a damaged stamp, over which the resampling would invent (or allocate) data
+MAX_ULOG_GAP = 1.0
+
+
+class LogError(ValueError):
+    """A flight log that cannot be replayed: missing, unreadable, truncated, empty or inconsistent.
+
+    The message is "<file>: <what is wrong>", naming the field, the value found and what is accepted.
+    """
+
+    def __init__(self, path, problem: str):
+        super().__init__(f"{path}: {problem}")
+        self.path, self.problem = str(path), problem
+
+    def __reduce__(self):  # picklable (worker processes) although __init__ takes two arguments
+        return type(self), (self.path, self.problem)
 
 
 @dataclass
@@ -98,33 +131,145 @@ def read_ulog(path, rate_hz: float = 250.0, pwm_range=PWM_RANGE, max_rotor_speed
     dead time (tau 5-10 ms with 24-28 ms delay; a 30 ms lag alone reaches R^2 0.37): the simulator's loop
     (USB, MAVLink) adds to the motor. The SIL logs' 10 Hz PWM cannot resolve this; they get the same values.
     """
-    from pyulog import ULog
-
-    ulog = ULog(str(path), list(ULOG_TOPICS))
-    topics = {d.name: d.data for d in ulog.data_list if d.multi_id == 0}
-    start = ulog.start_timestamp
+    ulog = _parse_ulog(path, _read_bytes(path))
+    topics = {d.name: _Topic(path, d.name, d.data) for d in ulog.data_list if d.multi_id == 0}
     missing = [name for name in ULOG_TOPICS[:2] if name not in topics]
     if missing:
-        raise ValueError(f"{path}: no {' or '.join(missing)} topic to make the readings from")
+        raise LogError(path, f"missing topic {missing[0]!r} (replay needs {' and '.join(ULOG_TOPICS[:2])}; of "
+                             f"{', '.join(ULOG_TOPICS)} the log has {', '.join(sorted(topics)) or 'none'})")
+    start = ulog.start_timestamp
     imu, outputs = topics["sensor_combined"], topics["actuator_outputs"]
     # one stamp for gyro and accelerometer: accelerometer_timestamp_relative is 0 in the RflyMAD logs
-    t_imu, t_out = _seconds(imu, start), _seconds(outputs, start)
+    t_imu, t_out = imu.seconds(start), outputs.seconds(start)
     time = uniform_grid(max(t_imu[0], t_out[0]), min(t_imu[-1], t_out[-1]), rate_hz)
+    if len(time) < MIN_SAMPLES:
+        raise LogError(path, f"too few samples ({len(time)} at {rate_hz:g} Hz where sensor_combined and "
+                             f"actuator_outputs overlap in time; at least {MIN_SAMPLES} needed)")
 
-    pwm = hold(t_out + actuator_delay, _columns(outputs, "output", n_rotors), time)
+    pwm = hold(t_out + actuator_delay, outputs.columns("output", n_rotors), time)
     speed_command = pwm_to_rotor_speed(pwm, pwm_range, max_rotor_speed, idle_rotor_speed)
     readings = {
-        "gyro": interpolate(t_imu, _columns(imu, "gyro_rad", 3), time),
-        "accel": interpolate(t_imu, _columns(imu, "accelerometer_m_s2", 3), time),
+        "gyro": interpolate(t_imu, imu.columns("gyro_rad", 3), time),
+        "accel": interpolate(t_imu, imu.columns("accelerometer_m_s2", 3), time),
         "rotor_speed": first_order_lag(speed_command, 1.0 / rate_hz, motor_time_constant),
     }
     readings.update(_navigation(topics, start, time))
+    check_readings(path, time, readings, what=lambda key: f"reading {key!r}")
     fault_time, fault_target, effectiveness = _rfly_fault(topics.get("rfly_ctrl_lxl"), start, n_rotors)
     metadata = {"pwm_range": list(pwm_range), "max_rotor_speed": max_rotor_speed,
                 "idle_rotor_speed": idle_rotor_speed, "motor_time_constant": motor_time_constant,
                 "actuator_delay": actuator_delay, "actuator_rate_hz": _median_rate(t_out),
                 "fault_effectiveness": effectiveness, "hardware": ulog.msg_info_dict.get("ver_hw", "")}
     return FlightLog(time, readings, PX4_QUAD_X_ORDER, fault_time, fault_target, str(path), None, metadata)
+
+
+def _parse_ulog(path, data: bytes):
+    """pyulog's parse of `data` (the topics replay reads); a LogError for a file that is no ULog, is cut short
+    or has damaged messages, which pyulog would skip (printing) rather than raise."""
+    from pyulog import ULog
+    from pyulog.exceptions import ULogException
+
+    check_ulog_framing(path, data)
+    chatter = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(chatter):  # pyulog prints what it skips; file_corruption flags it
+            ulog = ULog(io.BytesIO(data), list(ULOG_TOPICS))
+    except (ULogException, ValueError, struct.error) as error:
+        raise LogError(path, f"unreadable ULog ({error})") from None
+    if ulog.file_corruption:
+        said = chatter.getvalue().strip().splitlines()
+        raise LogError(path, f"corrupt ULog (damaged messages{': pyulog says ' + said[0] if said else ''}; "
+                             f"a readable log has none)")
+    return ulog
+
+
+def check_ulog_framing(path, data: bytes) -> None:
+    """Raise a LogError unless `data` starts with the ULog magic and its messages are whole and end the file.
+
+    A ULog is a 16-byte header, then messages framed as (uint16 payload size, uint8 type, payload). A logger
+    stopped mid-write (power loss, a copy cut short) leaves a last message that runs past the end, which pyulog
+    drops silently. A frame pyulog calls damaged (type 0, size 0 or > 10000) is rejected here too: pyulog's
+    recovery from one can loop forever (pyulog 1.3, in the definitions section).
+    """
+    if data[:len(ULOG_MAGIC)] != ULOG_MAGIC:
+        if len(data) < len(ULOG_MAGIC) and ULOG_MAGIC.startswith(data):
+            raise LogError(path, f"truncated ULog (the file ends at byte {len(data)}, inside the 16-byte header)")
+        raise LogError(path, f"not a ULog file (bad magic: starts with {data[:len(ULOG_MAGIC)].hex(' ')}; "
+                             f"a ULog starts with 'ULog' {ULOG_MAGIC[4:].hex(' ')})")
+    if len(data) < ULOG_HEADER_SIZE:
+        raise LogError(path, f"truncated ULog (the file ends at byte {len(data)}, inside the 16-byte header)")
+    starts = _segment_starts(path, data)
+    for start, end in zip(starts, starts[1:] + [len(data)]):
+        _walk_frames(path, data, start, end)
+
+
+def _walk_frames(path, data: bytes, position: int, end: int) -> None:
+    """Frames from `position` on until `end`; only the file's last segment must end exactly at the end."""
+    while position < end:
+        if position + 3 > len(data):
+            raise LogError(path, f"truncated ULog (data ends mid-message at byte {len(data)}: the message header "
+                                 f"at byte {position} needs 3 bytes, {len(data) - position} left)")
+        size, kind = struct.unpack_from("<HB", data, position)
+        if kind == 0 or size == 0 or size > 10000:
+            raise LogError(path, f"corrupt ULog (damaged message at byte {position}: type {kind}, size {size}; "
+                                 f"a message has a type > 0 and 1-10000 bytes)")
+        if position + 3 + size > len(data):
+            raise LogError(path, f"truncated ULog (data ends mid-message at byte {len(data)}: the message at "
+                                 f"byte {position} needs {3 + size} bytes, {len(data) - position} left)")
+        position += 3 + size
+
+
+def _segment_starts(path, data: bytes) -> list:
+    """Where each run of messages starts: after the header, and at each appended-data offset.
+
+    A flag-bits message ('B': 8 compat, 8 incompat flag bytes, 3 uint64 offsets) first in the file may mark data
+    appended later (a crash dump); the part before such an offset may end mid-message by design.
+    """
+    flags = ULOG_HEADER_SIZE + 3
+    if len(data) < flags + 40 or data[ULOG_HEADER_SIZE + 2] != ord("B") or not data[flags + 8] & 1:
+        return [ULOG_HEADER_SIZE]
+    offsets = [offset for offset in struct.unpack_from("<3Q", data, flags + 16) if offset]
+    if offsets != sorted(set(offsets)) or (offsets and offsets[0] <= flags + 40):
+        raise LogError(path, f"corrupt ULog (appended-data offsets {offsets}; expected increasing offsets past the "
+                             f"header)")
+    if offsets and offsets[-1] > len(data):
+        raise LogError(path, f"truncated ULog (appended data starts at byte {offsets[-1]}, the file ends at byte "
+                             f"{len(data)})")
+    return [ULOG_HEADER_SIZE, *offsets]
+
+
+class _Topic:
+    """One ULog topic's fields, read with checks: a missing field, a non-finite value or a time that does not
+    increase is a LogError naming the topic."""
+
+    def __init__(self, path, name: str, data: dict):
+        self.path, self.name, self.data = path, name, data
+
+    def field(self, name: str) -> np.ndarray:
+        if name not in self.data:
+            raise LogError(self.path, f"topic {self.name!r} has no field {name!r}")
+        values = np.asarray(self.data[name], dtype=float)
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:
+            raise LogError(self.path, f"topic {self.name!r}: field {name!r} is {values[bad[0]]} at sample {bad[0]} "
+                                      f"(readings must be finite)")
+        return values
+
+    def columns(self, name: str, n: int) -> np.ndarray:
+        return np.column_stack([self.field(f"{name}[{i}]") for i in range(n)])
+
+    def seconds(self, start: int) -> np.ndarray:
+        """Stamps as s from `start`: at least MIN_SAMPLES, strictly increasing, no gap over MAX_ULOG_GAP."""
+        if "timestamp" not in self.data:
+            raise LogError(self.path, f"topic {self.name!r} has no field 'timestamp'")
+        # int64 first: a few topics carry stamps from before the log's start, which wrap around in uint64.
+        t = (self.data["timestamp"].astype(np.int64) - np.int64(start)) * 1e-6
+        _check_time(self.path, t, f"topic {self.name!r}", lambda i: f"sample {i}")
+        gap = int(np.argmax(np.diff(t)))
+        if t[gap + 1] - t[gap] > MAX_ULOG_GAP:
+            raise LogError(self.path, f"topic {self.name!r} has a {t[gap + 1] - t[gap]:.3g} s gap after sample {gap} "
+                                      f"(at {t[gap]:.3f} s; at most {MAX_ULOG_GAP:g} s accepted)")
+        return t
 
 
 def uniform_grid(start: float, end: float, rate_hz: float) -> np.ndarray:
@@ -164,17 +309,8 @@ def first_order_lag(command: np.ndarray, dt: float, time_constant: float) -> np.
     return signal.lfilter(b, a, command, axis=0, zi=initial)[0]
 
 
-def _seconds(data: dict, start: int) -> np.ndarray:
-    # int64 first: a few topics carry stamps from before the log's start, which wrap around in uint64.
-    return (data["timestamp"].astype(np.int64) - np.int64(start)) * 1e-6
-
-
 def _median_rate(t: np.ndarray) -> float:
     return float(1.0 / np.median(np.diff(t)))
-
-
-def _columns(data: dict, name: str, n: int) -> np.ndarray:
-    return np.column_stack([data[f"{name}[{i}]"] for i in range(n)]).astype(float)
 
 
 def _navigation(topics: dict, start: int, grid: np.ndarray) -> dict:
@@ -182,14 +318,15 @@ def _navigation(topics: dict, start: int, grid: np.ndarray) -> dict:
     out = {}
     if "vehicle_attitude" in topics:
         att = topics["vehicle_attitude"]
-        q = _continuous_sign(_columns(att, "q", 4)[:, [1, 2, 3, 0]])
-        q = interpolate(_seconds(att, start), q, grid)
-        out["attitude"] = q / np.linalg.norm(q, axis=1, keepdims=True)
+        q = _continuous_sign(att.columns("q", 4)[:, [1, 2, 3, 0]])
+        q = interpolate(att.seconds(start), q, grid)
+        with np.errstate(invalid="ignore", divide="ignore"):  # a zero q gives NaN, which check_readings reports
+            out["attitude"] = q / np.linalg.norm(q, axis=1, keepdims=True)
     if "vehicle_local_position" in topics:
         pos = topics["vehicle_local_position"]
-        t = _seconds(pos, start)
-        out["position"] = interpolate(t, np.column_stack([pos[k] for k in ("x", "y", "z")]).astype(float), grid)
-        out["velocity"] = interpolate(t, np.column_stack([pos[k] for k in ("vx", "vy", "vz")]).astype(float), grid)
+        t = pos.seconds(start)
+        out["position"] = interpolate(t, np.column_stack([pos.field(k) for k in ("x", "y", "z")]), grid)
+        out["velocity"] = interpolate(t, np.column_stack([pos.field(k) for k in ("vx", "vy", "vz")]), grid)
     return out
 
 
@@ -199,60 +336,250 @@ def _continuous_sign(q: np.ndarray) -> np.ndarray:
     return q * np.concatenate(([1.0], flips))[:, None]
 
 
-def _rfly_fault(data: dict | None, start: int, n_rotors: int):
+def _rfly_fault(data: _Topic | None, start: int, n_rotors: int):
     """RflyMAD ground truth: the first `rfly_ctrl_lxl` sample with mode 1 gives the motors' effectiveness.
 
     Before that the topic holds zeros, which are not a fault. Returns (time, 0-based motor, effectiveness).
     """
-    if data is None or not np.any(data["mode"] == 1):
+    if data is None or not np.any(data.field("mode") == 1):
         return None, None, None
-    first = int(np.argmax(data["mode"] == 1))
-    effectiveness = _columns(data, "controls", n_rotors)[first]
+    first = int(np.argmax(data.field("mode") == 1))
+    effectiveness = data.columns("controls", n_rotors)[first]
     faulty = np.flatnonzero(effectiveness < 1.0)
     if faulty.size == 0:
         return None, None, None
     target = int(faulty[0])
-    return float(_seconds(data, start)[first]), target, float(effectiveness[target])
+    return float(data.seconds(start)[first]), target, float(effectiveness[target])
 
 
 # ----------------------------------------------------------------------------------------- ftcgym recordings
 
 def read_npz(path) -> FlightLog:
     """A recording written by `RecordingWrapper` (NPZ): arrays `time`, `commands`, `reading/<key>`, `metadata`."""
-    with np.load(path, allow_pickle=False) as data:
-        readings = {name.split("/", 1)[1]: data[name] for name in data.files if name.startswith("reading/")}
-        metadata = json.loads(str(data["metadata"]))
-        commands = data["commands"] if "commands" in data.files else None
-        return _recorded_log(data["time"], readings, commands, metadata, path)
+    arrays = _npz_arrays(path, _read_bytes(path))
+    for name in ("time", "metadata"):
+        if name not in arrays:
+            raise LogError(path, f"missing array {name!r} (a recording has time, metadata and reading/<key> arrays; "
+                                 f"this one has {', '.join(sorted(arrays)) or 'none'})")
+    readings = {name.split("/", 1)[1]: value for name, value in arrays.items() if name.startswith("reading/")}
+    metadata = arrays["metadata"]
+    if metadata.shape != () or metadata.dtype.kind != "U":
+        raise LogError(path, f"array 'metadata' is {metadata.dtype} of shape {metadata.shape}; expected one JSON "
+                             f"string")
+    return _recorded_log(path, arrays["time"], readings, arrays.get("commands"), _metadata(path, str(metadata)),
+                         what=lambda key: f"array {key!r}" if key in ("time", "commands") else f"array 'reading/{key}'",
+                         where=lambda i: f"index {i}")
+
+
+def _npz_arrays(path, data: bytes) -> dict:
+    """Every array of an NPZ archive, loaded now, so that a damaged member fails here, as a LogError."""
+    if not data.startswith(b"PK"):
+        raise LogError(path, f"not an NPZ archive (starts with {data[:4].hex(' ')}; a zip archive starts with 'PK')")
+    try:
+        with np.load(io.BytesIO(data), allow_pickle=False) as archive:
+            return {name: archive[name] for name in archive.files}
+    except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError, NotImplementedError) as error:
+        raise LogError(path, f"unreadable NPZ archive ({error})") from None
 
 
 def read_csv(path) -> FlightLog:
     """A recording written by `RecordingWrapper` (CSV): `# metadata <json>` line, header `time,gyro[0],...`."""
-    with open(path, newline="") as file:
-        first = file.readline()
-        if not first.startswith("# metadata "):
-            raise ValueError(f"{path}: not an ftcgym recording (no '# metadata' line)")
-        metadata = json.loads(first[len("# metadata "):])
-        rows = list(csv.reader(file))
-    header, table = rows[0], np.array(rows[1:], dtype=float).reshape(-1, len(rows[0]))
-    columns = {}
+    lines = _text(path, _read_bytes(path)).splitlines()
+    if not lines[0].startswith("# metadata "):
+        raise LogError(path, f"not an ftcgym recording (line 1 is {lines[0][:40]!r}, a recording's is "
+                             f"'# metadata {{...}}')")
+    metadata = _metadata(path, lines[0][len("# metadata "):])
+    try:
+        rows = list(csv.reader(lines[1:]))
+    except csv.Error as error:
+        raise LogError(path, f"unreadable CSV ({error})") from None
+    if not rows or not rows[0]:
+        raise LogError(path, "no header on line 2 (a recording's is time,gyro[0],...)")
+    readings = _csv_columns(path, rows[0], _csv_table(path, rows[0], rows[1:]))
+    time, commands = readings.pop("time", None), readings.pop("command", None)
+    return _recorded_log(path, time, readings, commands, metadata,
+                         what=lambda key: f"column {key!r}", where=lambda i: f"line {i + 3}")
+
+
+def _csv_table(path, header: list, rows: list) -> np.ndarray:
+    """(N, len(header)) numbers; a LogError naming the line and column of the first field that is not one."""
+    for number, row in enumerate(rows, start=3):
+        if len(row) != len(header):
+            raise LogError(path, f"line {number} has {len(row)} fields, the header has {len(header)} (every line "
+                                 f"has as many)")
+    try:
+        return np.array(rows, dtype=float).reshape(len(rows), len(header))
+    except ValueError as error:
+        numpy_says = str(error)
+    for number, row in enumerate(rows, start=3):  # only after a failure: find the field to name
+        for name, text in zip(header, row):
+            try:
+                float(text)
+            except ValueError:
+                raise LogError(path, f"line {number}, column {name!r}: {text[:40]!r} is not a number "
+                                     f"(every field of a data line is one)") from None
+    raise LogError(path, f"a field is not a number ({numpy_says})")
+
+
+def _csv_columns(path, header: list, table: np.ndarray) -> dict:
+    """Columns grouped by key: `key` alone or `key[0]`, `key[1]`, ... in order, each name once -> (N, k) arrays."""
+    groups = {}
     for i, name in enumerate(header):
         key = name.split("[", 1)[0]
-        columns.setdefault(key, []).append(table[:, i])
-    arrays = {key: np.column_stack(cols) for key, cols in columns.items()}
-    time, commands = arrays.pop("time")[:, 0], arrays.pop("command", None)
-    return _recorded_log(time, arrays, commands, metadata, path)
+        expected = f"{key}[{len(groups.get(key, []))}]"
+        if name not in (key, expected) or (name == key and key in groups):
+            raise LogError(path, f"header column {i + 1} is {name!r}; expected {expected!r} (a key's columns are "
+                                 f"numbered from 0, in order, each once)")
+        groups.setdefault(key, []).append(i)
+    arrays = {key: table[:, index] for key, index in groups.items()}
+    if "time" in arrays and arrays["time"].shape[1] == 1:  # one value per sample; more is refused later
+        arrays["time"] = arrays["time"][:, 0]
+    return arrays
 
 
-def _recorded_log(time, readings, commands, metadata: dict, path) -> FlightLog:
-    return FlightLog(np.asarray(time, dtype=float), dict(readings), metadata.get("actuator_order", FTCGYM_ROTOR_ORDER),
-                     metadata.get("fault_time"), metadata.get("fault_target"), str(path), commands, metadata)
+def _text(path, data: bytes) -> str:
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as error:
+        raise LogError(path, f"not a text file (byte {data[error.start]:#04x} at offset {error.start} is not "
+                             f"UTF-8; a CSV recording is UTF-8 text)") from None
+
+
+def _metadata(path, text: str) -> dict:
+    """The recording's metadata: a JSON object whose keys replay reads have the types it needs."""
+    try:
+        metadata = json.loads(text)
+    except json.JSONDecodeError as error:
+        raise LogError(path, f"metadata is not valid JSON ({error.msg} at character {error.pos})") from None
+    if not isinstance(metadata, dict):
+        raise LogError(path, f"metadata must be a JSON object, got {type(metadata).__name__}")
+    for key, accepted, ok in _METADATA_RULES:
+        if key in metadata and not ok(metadata[key]):
+            raise LogError(path, f"metadata {key!r} is {metadata[key]!r}; expected {accepted}")
+    return metadata
+
+
+def _is_number(value) -> bool:
+    """A finite JSON number (an int of any size, a float other than NaN and infinity; not a bool)."""
+    if isinstance(value, bool):
+        return False
+    return isinstance(value, int) or (isinstance(value, float) and math.isfinite(value))
+
+
+_METADATA_RULES = (   # key, what is accepted, test
+    ("actuator_order", "a string", lambda v: isinstance(v, str)),
+    ("fault_time", "a finite number or null", lambda v: v is None or _is_number(v)),
+    ("fault_target", "a rotor index >= 0 or null", lambda v: v is None or (_is_number(v) and v == int(v) >= 0)),
+    ("effectiveness_G", "3 finite numbers", lambda v: isinstance(v, list) and len(v) == 3 and all(map(_is_number, v))),
+)
+
+
+def _recorded_log(path, time, readings: dict, commands, metadata: dict, what, where) -> FlightLog:
+    check_readings(path, time, readings, commands, what, where)
+    target = metadata.get("fault_target")
+    return FlightLog(np.asarray(time, dtype=float), {key: np.asarray(v, dtype=float) for key, v in readings.items()},
+                     metadata.get("actuator_order", FTCGYM_ROTOR_ORDER), metadata.get("fault_time"),
+                     None if target is None else int(target), str(path),
+                     None if commands is None else np.asarray(commands, dtype=float), metadata)
+
+
+# ----------------------------------------------------------------------------------------- checks
+
+def check_readings(path, time, readings: dict, commands=None, what=repr, where=lambda i: f"sample {i}") -> None:
+    """Raise a LogError unless the arrays make a replayable log. The rules:
+
+    - `time`: 1-D, numeric, finite, strictly increasing, at least MIN_SAMPLES long;
+    - `readings`: the REQUIRED_READINGS present; each numeric, finite, one row per sample, and of the width
+      REQUIRED_READINGS / SHAPED_READINGS give (any width for other keys);
+    - `commands` (optional): one row per sample, each row all finite, or all NaN (no command was sent).
+
+    `what(key)` and `where(index)` name a field and a sample as the file does (a column and a line of a CSV).
+    """
+    if time is None:
+        raise LogError(path, f"missing {what('time')} (a recording needs time, {', '.join(REQUIRED_READINGS)})")
+    time = _numeric(path, time, what("time"))
+    if time.ndim != 1:
+        raise LogError(path, f"{what('time')} has shape {time.shape}; expected one value per sample")
+    _check_time(path, time, what("time"), where)
+    for key in REQUIRED_READINGS:
+        if key not in readings:
+            raise LogError(path, f"missing {what(key)} (a recording needs time, {', '.join(REQUIRED_READINGS)})")
+    for key, value in readings.items():
+        width = REQUIRED_READINGS.get(key, SHAPED_READINGS.get(key))
+        _check_block(path, _numeric(path, value, what(key)), len(time), width, what(key), where)
+    if commands is not None:
+        _check_commands(path, _numeric(path, commands, what("commands")), len(time), what("commands"))
+
+
+def _check_time(path, time: np.ndarray, name: str, where) -> None:
+    if len(time) < MIN_SAMPLES:
+        raise LogError(path, f"too few samples ({len(time)} in {name}; at least {MIN_SAMPLES} needed)")
+    bad = np.flatnonzero(~np.isfinite(time))
+    if bad.size:
+        raise LogError(path, f"non-finite time at {where(bad[0])} ({name}: {time[bad[0]]}; times must be finite)")
+    back = np.flatnonzero(np.diff(time) <= 0)
+    if back.size:
+        i = back[0] + 1
+        raise LogError(path, f"time is not increasing at {where(i)} ({name}: {float(time[i])!r} after "
+                             f"{float(time[i - 1])!r}; times must strictly increase)")
+
+
+def _check_block(path, value: np.ndarray, n: int, width, name: str, where) -> None:
+    """(n,) or (n, width) values, all finite."""
+    columns = 1 if value.ndim == 1 else int(np.prod(value.shape[1:]))
+    if value.ndim == 0 or len(value) != n or (width is not None and (value.ndim != 2 or columns != width)):
+        expected = f"({n}, {width})" if width is not None else f"{n} rows"
+        raise LogError(path, f"{name} has shape {value.shape}; expected {expected} (one row per time sample)")
+    bad = np.argwhere(~np.isfinite(value.reshape(n, -1)))
+    if len(bad):
+        row, column = bad[0]
+        raise LogError(path, f"non-finite value {value.reshape(n, -1)[row, column]} in {name} at {where(row)}, "
+                             f"component {column} (readings must be finite numbers)")
+
+
+def _check_commands(path, commands: np.ndarray, n: int, name: str) -> None:
+    if commands.ndim != 2 or len(commands) != n:
+        raise LogError(path, f"{name} has shape {commands.shape}; expected ({n}, m): one row per time sample")
+    finite = np.isfinite(commands)
+    mixed = np.flatnonzero(~(finite.all(axis=1) | np.isnan(commands).all(axis=1)))
+    if mixed.size:
+        raise LogError(path, f"{name} row {mixed[0]} is {commands[mixed[0]].tolist()}; a row is all finite, or all "
+                             f"NaN where no command was sent")
+
+
+def _numeric(path, value, name: str) -> np.ndarray:
+    value = np.asarray(value)
+    if value.dtype.kind not in "biuf":
+        raise LogError(path, f"{name} holds {value.dtype} values; expected numbers")
+    return value.astype(float)
+
+
+# ----------------------------------------------------------------------------------------- any log
+
+def _read_bytes(path) -> bytes:
+    """The whole file; a LogError for one that is missing, a directory, unreadable or empty."""
+    try:
+        data = Path(path).read_bytes()
+    except FileNotFoundError:
+        raise LogError(path, "no such file") from None
+    except IsADirectoryError:
+        raise LogError(path, "is a directory; expected a log file (.ulg, .npz, .csv)") from None
+    except OSError as error:
+        raise LogError(path, f"cannot read the file ({error.strerror or error})") from None
+    if not data:
+        raise LogError(path, "empty file (0 bytes)")
+    return data
 
 
 def read_log(path, rate_hz: float = 250.0) -> FlightLog:
-    """Any supported log by its extension: .ulg (resampled to `rate_hz`), .npz, .csv (as recorded)."""
+    """Any supported log by its extension: .ulg (resampled to `rate_hz`), .npz, .csv (as recorded).
+
+    Raises LogError (a ValueError) naming the file and the problem for anything it cannot replay.
+    """
+    if Path(path).is_dir():
+        raise LogError(path, "is a directory; expected a log file (.ulg, .npz, .csv)")
     suffix = Path(path).suffix.lower()
     readers = {".ulg": lambda: read_ulog(path, rate_hz), ".npz": lambda: read_npz(path), ".csv": lambda: read_csv(path)}
     if suffix not in readers:
-        raise ValueError(f"{path}: unknown log type {suffix!r}; accepted: .ulg, .npz, .csv")
+        raise LogError(path, f"unknown log type {suffix or '(no extension)'!r}; accepted: .ulg, .npz, .csv")
     return readers[suffix]()

@@ -14,7 +14,7 @@ import numpy as np
 from scipy import signal
 
 from .loe_kalman import SIGNS_000, LoeKalmanDetector, lowpass_coefficients
-from .logs import FTCGYM_INDEX, FTCGYM_ROTOR_ORDER, PX4_QUAD_X_ORDER, FlightLog, read_log
+from .logs import FTCGYM_INDEX, FTCGYM_ROTOR_ORDER, PX4_QUAD_X_ORDER, FlightLog, LogError, read_log
 
 #: Sign of each rotor's thrust in [p_dot, q_dot, a_z] (000 eq. 8-9 with the rotor positions of each layout):
 #: a rotor at y < 0 rolls right (+p), at x > 0 pitches up (+q), and every rotor pushes a_z negative.
@@ -79,6 +79,10 @@ def _detector_factory(name: str):
 
 def _loe_kalman(log: FlightLog, **overrides) -> LoeKalmanDetector:
     """000's detector at the log's rate. Our own vehicle: its G (as the online wrapper). Another: B identified."""
+    rotors = log.readings["rotor_speed"].shape[1]
+    if rotors != SIGNS_000.shape[1]:
+        raise LogError(log.source, f"'rotor_speed' has {rotors} columns; loe_kalman models a quadrotor "
+                                   f"({SIGNS_000.shape[1]} rotors)")
     settings = {"dt": log.dt}
     if log.actuator_order == FTCGYM_ROTOR_ORDER:
         if "effectiveness_G" in log.metadata:
@@ -120,7 +124,8 @@ def identify_effectiveness(log: FlightLog, t_start: float, t_end: float, signs=N
     targets, omega2 = _filtered_signals(log)
     window = (log.time[1:] >= t_start) & (log.time[1:] <= t_end)
     if window.sum() < 10:
-        raise ValueError(f"identify_effectiveness: too few samples in [{t_start}, {t_end}] s")
+        raise LogError(log.source, f"too few samples to identify the effectiveness from ({window.sum()} in "
+                                   f"[{t_start:.2f}, {t_end:.2f}] s; at least 10 needed)")
     targets, omega2 = targets[window], omega2[window]
     if signs is None:
         return _least_squares(omega2, targets, bias)
@@ -158,8 +163,8 @@ def fault_free_window(log: FlightLog, after_takeoff: float = 3.0, before_fault: 
     start = takeoff_time(log) + after_takeoff
     end = (log.fault_time if log.fault_time is not None else log.time[-1]) - before_fault
     if end <= start:
-        raise ValueError(f"{log.source}: no fault-free flight to identify on (take-off + {after_takeoff} s "
-                         f"= {start:.2f} s, fault - {before_fault} s = {end:.2f} s)")
+        raise LogError(log.source, f"no fault-free flight to identify on (take-off + {after_takeoff} s "
+                                   f"= {start:.2f} s, fault - {before_fault} s = {end:.2f} s)")
     return start, end
 
 
@@ -171,25 +176,36 @@ def takeoff_time(log: FlightLog, climb: float = 1.0) -> float:
     z = log.readings["position"][:, 2]
     above = np.flatnonzero(z <= z[0] - climb)
     if above.size == 0:
-        raise ValueError(f"{log.source}: the vehicle never climbs {climb} m: no flight to identify on")
+        raise LogError(log.source, f"the vehicle never climbs {climb} m: no flight to identify on")
     return float(log.time[above[0]])
 
 
 # ----------------------------------------------------------------------------------------- command line
 
 def main(args) -> int:
-    """`ftcgym replay LOG --detector NAME [--json] [--rate HZ]` (arguments parsed by ftcgym.cli)."""
+    """`ftcgym replay LOG --detector NAME [--json] [--rate HZ]` (arguments parsed by ftcgym.cli).
+
+    Exit status 2 and one line on stderr, "ftcgym replay: <file>: <problem>", for a log it cannot replay
+    (any LogError) or a detector it cannot set up; other exceptions are bugs and keep their traceback.
+    """
+    try:
+        build = _detector_factory(args.detector)  # a wrong name fails before the log is read
+    except ValueError as error:
+        return _fail(error)
     try:
         # Library chatter goes to stderr: with --json, stdout carries exactly one JSON object.
         with contextlib.redirect_stdout(sys.stderr):
-            build = _detector_factory(args.detector)  # a wrong name fails before the log is read
             log = read_log(args.log, rate_hz=args.rate)
             result = replay(log, build(log))
-    except (OSError, ValueError) as error:
-        print(f"ftcgym replay: {error}", file=sys.stderr)
-        return 2
+    except LogError as error:
+        return _fail(error)
     print(json.dumps(result) if args.json else format_result(result, log))
     return 0
+
+
+def _fail(error: Exception) -> int:
+    print(f"ftcgym replay: {error}", file=sys.stderr)
+    return 2
 
 
 def format_result(result: dict, log: FlightLog) -> str:
