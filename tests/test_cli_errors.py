@@ -37,6 +37,8 @@ def files(tmp_path):
     (["airdata-study", "--scenario", "nope"], "argument --scenario: scenario: unknown name 'nope'"),
     (["thresholds", "--scenario", "nope"], "argument --scenario: scenario: unknown name 'nope'"),
     (["perf", "--steps", "-5"], "argument --steps: expected an integer >= 1, got '-5'"),
+    (["replay", "x.ulg", "--detector", "loe_kalman", "--rate", "1e9"],
+     "argument --rate: expected a number of Hz in (0, 10000], got '1e9'"),
 ])
 def test_user_errors_end_in_one_line_and_status_2(argv, expected, files, capsys):
     status, lines = run_cli([arg.replace("{tmp}", str(files)) for arg in argv], capsys)

@@ -71,10 +71,12 @@ def test_the_autopilot_env_passes_options_to_its_quadplane():
 @pytest.mark.parametrize("env_id", ["ftcgym/Quadrotor-v0", "ftcgym/QuadPlane-v0"])
 @pytest.mark.parametrize("options, message", [
     ({"fault": []},
-     r"reset options key: unknown \['fault'\] \(did you mean 'faults'\?\); accepted: \['faults', 'vehicle_overrides', 'wind'\]"),
+     r"reset options key: unknown \['fault'\] \(did you mean 'faults'\?\); "
+     r"accepted: \['faults', 'vehicle_overrides', 'wind'\]"),
     ({"faults": [{"kind": "loe", "target": 9}]}, r"reset options: faults\[0\].target: 9 is not accepted for loe"),
     ({"wind": {"speed": 3}}, r"reset options: wind config key: unknown \['speed'\]"),
-    ({"vehicle_overrides": {"mas": 1.0}}, r"reset options: vehicle_overrides field: unknown \['mas'\] \(did you mean 'mass'\?\)"),
+    ({"vehicle_overrides": {"mas": 1.0}},
+     r"reset options: vehicle_overrides field: unknown \['mas'\] \(did you mean 'mass'\?\)"),
 ])
 def test_bad_options_are_rejected_as_the_make_time_kwargs_are(env_id, options, message):
     env = gym.make(env_id)

@@ -19,14 +19,17 @@ def add_parser(subparsers) -> None:
     parser.set_defaults(run=run)
 
 
+MAX_RATE = 10_000.0   # Hz: above any IMU a PX4 log holds; a higher rate only resamples into a huge array
+
+
 def positive_rate(text: str) -> float:
-    """A finite rate > 0 in Hz."""
+    """A rate in (0, MAX_RATE] Hz."""
     try:
         rate = float(text)
     except ValueError:
         rate = math.nan
-    if not (math.isfinite(rate) and rate > 0):
-        raise argparse.ArgumentTypeError(f"expected a finite number of Hz > 0, got {text!r}")
+    if not (math.isfinite(rate) and 0 < rate <= MAX_RATE):
+        raise argparse.ArgumentTypeError(f"expected a number of Hz in (0, {MAX_RATE:g}], got {text!r}")
     return rate
 
 
