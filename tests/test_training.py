@@ -184,7 +184,7 @@ def test_evaluate_prints_the_benchmark_summary(trained, capsys):
     out = capsys.readouterr().out
     header, _, row = out.splitlines()[:3]
     assert header.split()[:3] == ["scenario", "policy", "n"]
-    assert row.split()[:3] == ["quad-rotor-loss-hover", "learned", "1"]
+    assert row.split()[:3] == ["quad-rotor-loss-hover", "learned-spin", "1"]
     assert row.split()[-2] in ("0", "1") and "1 episodes in" in out
 
 

@@ -10,8 +10,8 @@
     ftcgym thresholds [--scenario NAME] [--target P] [--save F.npz | --load F.npz] ...
     ftcgym perf [--steps N] [--seed S] [--json]
     ftcgym trim [--vehicle NAME] [--vehicle-overrides JSON] [--airspeeds V...]
-    ftcgym train --config FILE_OR_TASK [--algo PPO|SAC] [--n-envs N] [--total-steps N] [--seed S] [--out DIR]
-                 [--init-from MODEL] [--no-progress]
+    ftcgym train --config FILE_OR_TASK [--quick] [--algo PPO|SAC] [--n-envs N] [--total-steps N]
+                 [--pretrain-iterations N] [--seed S] [--out DIR] [--init-from MODEL] [--no-progress]
     ftcgym evaluate MODEL [--scenario NAME] [--episodes N] [--seed S] [--env-kwargs JSON]
 
 A policy, detector or scenario NAME is a built-in name, a name an installed package registers (entry-point

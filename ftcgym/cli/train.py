@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import os
 import shlex
+import sys
 
 from .common import non_negative_int, positive_int
 
@@ -23,23 +24,48 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--n-envs", type=positive_int, metavar="N", help="parallel envs (default: the config's)")
     parser.add_argument("--total-steps", type=non_negative_int, metavar="N",
                         help="env steps to train for after any pre-training (default: the config's n_timesteps; "
-                             "0 with a `pretrain` section: imitation only)")
+                             "rounded up to whole rollouts, n_steps x n_envs for PPO; 0 with a `pretrain` section: "
+                             "imitation only)")
+    parser.add_argument("--pretrain-iterations", type=non_negative_int, metavar="N",
+                        help="DAgger iterations of the config's `pretrain` section (0: no pre-training)")
+    parser.add_argument("--quick", action="store_true",
+                        help="a run of about a minute to try the pipeline: the config's `quick` section merged over "
+                             "it (few DAgger iterations and samples, few RL steps, one env); the other options "
+                             "still apply on top (default --out: train_out/<task>-<algo>-seed<S>-quick)")
     parser.add_argument("--seed", type=non_negative_int, metavar="S", help="seed (default: the config's, else 0)")
     parser.add_argument("--out", metavar="DIR", help="output directory (default: train_out/<task>-<algo>-seed<S>)")
     parser.add_argument("--init-from", metavar="MODEL",
                         help="start from a saved model (a training output folder or .zip, e.g. a shipped policy's "
                              "folder) instead of the config's pre-training: fine-tuning")
     parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=True,
-                        help="show a progress bar (default: on)")
+                        help="show progress bars, with ETAs, over the DAgger steps and the RL steps (default: on)")
     parser.set_defaults(run=run)
 
 
 def run(args, argv: list[str]) -> int:
-    from ftcgym.training.config import load_config
-    config = load_config(args.config, args.algo, args.n_envs, args.total_steps, args.seed)
+    """Say what will run, in one line, before anything slow loads; train; Ctrl-C saves the model so far,
+    says where in one line on stderr and exits with status 130."""
+    try:
+        return _run(args, argv)
+    except KeyboardInterrupt as interrupt:
+        manifest = getattr(interrupt, "manifest", None)      # a TrainingInterrupted: the model so far was saved
+        if manifest is not None:
+            print(f"ftcgym train: interrupted {manifest['interrupted']}; saved the model so far "
+                  f"({manifest['steps']} RL steps) to {interrupt.out}", file=sys.stderr)
+        else:
+            print("ftcgym train: interrupted before training started; nothing saved", file=sys.stderr)
+        return 130
+
+
+def _run(args, argv: list[str]) -> int:
+    from ftcgym.training.config import load_config, plan_line
+    config = load_config(args.config, args.algo, args.n_envs, args.total_steps, args.seed, args.pretrain_iterations,
+                         args.quick)
+    out = args.out or os.path.join("train_out", f"{config.task}-{config.algo}-seed{config.seed}"
+                                                f"{'-quick' if config.quick else ''}")
+    print(plan_line(config, out, args.init_from), flush=True)
     from ftcgym.training.train import train
 
-    out = args.out or os.path.join("train_out", f"{config.task}-{config.algo}-seed{config.seed}")
     manifest = train(config, out, progress=args.progress, command=shlex.join(["ftcgym", *argv]),
                      init_from=args.init_from)
     if "pretrain" in manifest:

@@ -1,4 +1,5 @@
-"""Training callbacks: evaluation with the benchmark's metrics, and a plain tqdm progress bar."""
+"""Training callbacks: evaluation with the benchmark's metrics, and a plain tqdm progress bar (tqdm is a
+dependency of ftcgym; SB3's own bar needs `rich` and counts the steps asked, not the whole rollouts run)."""
 from __future__ import annotations
 
 import json
@@ -42,11 +43,11 @@ class BenchmarkEvalCallback(BaseCallback):
         return True
 
     def evaluate(self) -> dict:
-        from ftcgym.training.policy import POLICY_CLASSES, LearnedPolicy
+        from ftcgym.training.policy import POLICY_CLASSES, LearnedPolicy, policy_name
         normalizer = self.model.get_vec_normalize_env()
         policy_class = POLICY_CLASSES.get(self.env_id, LearnedPolicy)   # the benchmark policy of the task
         rows = score_policy(lambda env: policy_class(self.model, normalizer, self.env_id, self.task_kwargs, env),
-                            self.scenario, self.episodes, self.seed, self.env_overrides)
+                            self.scenario, self.episodes, self.seed, self.env_overrides, policy_name(self.env_id))
         summary = metrics.summarize(rows)[0]
         losses = [row["altitude_loss"] for row in rows if row["altitude_loss"] is not None]
         summary = {**summary, "timesteps": self.num_timesteps,
@@ -54,8 +55,8 @@ class BenchmarkEvalCallback(BaseCallback):
         for name in ("success_rate", "crash_rate", "recovery_latency_median", "altitude_loss_mean"):
             if summary[name] is not None:
                 self.logger.record(f"eval/{name.replace('_mean', '')}", summary[name])
-        if self.verbose:
-            print(f"eval at {self.num_timesteps} steps: success {summary['success_rate']:.2f}, "
+        if self.verbose:        # above a progress bar, if one is shown
+            tqdm.write(f"eval at {self.num_timesteps} steps: success {summary['success_rate']:.2f}, "
                   f"crash {summary['crash_rate']:.2f} ({self.episodes} episodes of {self.scenario})")
         key = (summary["success_rate"] or 0.0, -(summary["crash_rate"] or 0.0))
         if self.best_dir is not None and (self.best_key is None or key > self.best_key):
@@ -72,18 +73,25 @@ class BenchmarkEvalCallback(BaseCallback):
 
 
 class TqdmProgressCallback(BaseCallback):
-    """A progress bar over the run's env steps with plain tqdm (SB3's own needs `rich`)."""
+    """A progress bar over the run's env steps with plain tqdm: `total` is the steps the run takes
+    (`config.rl_steps`, whole rollouts), so the bar shows the share done and an ETA."""
 
     def __init__(self, total: int):
         super().__init__()
         self.total, self.bar = total, None
 
     def _on_training_start(self) -> None:
-        self.bar = tqdm(total=self.total, initial=self.num_timesteps, unit="step", desc="train")
+        self.bar = tqdm(total=self.total, initial=self.num_timesteps, unit="step", desc="RL", dynamic_ncols=True)
 
     def _on_step(self) -> bool:
         self.bar.update(self.training_env.num_envs)
         return True
 
     def _on_training_end(self) -> None:
-        self.bar.close()
+        self.close()
+
+    def close(self) -> None:
+        """Close the bar (also after an interrupted `learn`, which skips `_on_training_end`)."""
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None

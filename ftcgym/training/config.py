@@ -17,8 +17,14 @@
         policy_kwargs: {net_arch: [128, 128], activation_fn: relu}   # activation by name (ACTIVATIONS)
         n_steps: 1024                       # every other key goes to the algorithm's constructor
       SAC: {...}
+      quick:                                # `--quick`: merged over the keys above (a run of about a minute)
+        pretrain: {iterations: 3, steps_per_iteration: 4000}
+        PPO: {n_envs: 1, n_timesteps: 2048, n_steps: 1024}
 
-`load_config(name_or_path)` takes a path or the name of a built-in file in `ftcgym/training/configs`.
+`load_config(name_or_path)` takes a path or the name of a built-in file in `ftcgym/training/configs`;
+`load_config(..., quick=True)` merges the file's `quick` section over the rest first (`merge`: mappings key by
+key, anything else replaced), then applies the command-line overrides. `rl_steps(config)` is the number of RL
+steps a run takes: SB3 collects whole rollouts, so `total_steps` is rounded up to a multiple of one.
 """
 from __future__ import annotations
 
@@ -56,6 +62,7 @@ class TrainConfig:
     torch_threads: int = 1
     pretrain: dict | None = None   # imitation pre-training (`imitation.dagger`); env_kwargs added for it
     source: str = ""
+    quick: bool = False            # the file's `quick` section was merged in (`--quick`)
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -80,15 +87,35 @@ def config_path(name_or_path: str) -> Path:
     return builtin
 
 
+def merge(base: dict, overrides: dict) -> dict:
+    """`base` with `overrides` merged in: mappings key by key (recursively), any other value replaced."""
+    merged = copy.deepcopy(base)
+    for key, value in overrides.items():
+        if isinstance(value, dict) and isinstance(merged.get(key), dict):
+            merged[key] = merge(merged[key], value)
+        else:
+            merged[key] = copy.deepcopy(value)
+    return merged
+
+
 def load_config(name_or_path: str, algo: str | None = None, n_envs: int | None = None,
-                total_steps: int | None = None, seed: int | None = None) -> TrainConfig:
-    """The run described by a config file (or built-in task name), with command-line overrides."""
+                total_steps: int | None = None, seed: int | None = None, pretrain_iterations: int | None = None,
+                quick: bool = False) -> TrainConfig:
+    """The run described by a config file (or built-in task name), with command-line overrides. `quick`: the
+    file's `quick` section merged over it first; `pretrain_iterations`: the DAgger iterations (0: none)."""
     path = config_path(name_or_path)
     document = read_yaml(path)
     if not isinstance(document, dict) or len(document) != 1:
         raise ValueError(f"config {path}: expected one top-level key, the task name")
     (task, body), = document.items()
+    if not isinstance(body, dict):
+        raise ValueError(f"config {path}: the task {task!r} must map keys to settings")
     body = copy.deepcopy(body)
+    overrides = body.pop("quick", None)
+    if quick:
+        if not isinstance(overrides, dict):
+            raise ValueError(f"config {path}: no `quick` section (the overrides of --quick)")
+        body = merge(body, overrides)
     algo = (algo or body.get("default_algo") or "PPO").upper()
     if algo not in ALGOS:
         raise ValueError(f"algo: {algo!r}; accepted: {list(ALGOS)}")
@@ -105,10 +132,20 @@ def load_config(name_or_path: str, algo: str | None = None, n_envs: int | None =
         env_kwargs=body.get("env_kwargs") or {}, wrappers=list(body.get("wrappers") or []),
         normalize=normalize, policy_kwargs=section.pop("policy_kwargs", None) or {},
         checkpoint_freq=int(body.get("checkpoint_freq", 100_000)), eval=body.get("eval"),
-        torch_threads=int(body.get("torch_threads", 1)), pretrain=body.get("pretrain"), source=str(path))
+        torch_threads=int(body.get("torch_threads", 1)), pretrain=body.get("pretrain"), source=str(path),
+        quick=bool(quick))
     section.pop("n_envs", None)
     section.pop("n_timesteps", None)
     config.hyperparams = section
+    if pretrain_iterations is not None:
+        if pretrain_iterations < 0:
+            raise ValueError(f"pretrain iterations must be >= 0, got {pretrain_iterations}")
+        if pretrain_iterations == 0:
+            config.pretrain = None
+        elif not config.pretrain:
+            raise ValueError(f"config {path}: no `pretrain` section, so no DAgger iterations to set")
+        else:
+            config.pretrain = {**config.pretrain, "iterations": int(pretrain_iterations)}
     activation = config.policy_kwargs.get("activation_fn", "tanh")
     if activation not in ACTIVATIONS:
         raise ValueError(f"policy_kwargs.activation_fn: {activation!r}; accepted: {list(ACTIVATIONS)}")
@@ -117,3 +154,63 @@ def load_config(name_or_path: str, algo: str | None = None, n_envs: int | None =
         raise ValueError(f"n_envs must be >= 1 and total steps >= {least}, "
                          f"got {config.n_envs} and {config.total_steps}")
     return config
+
+
+def rollout_steps(config: TrainConfig) -> int | None:
+    """Env steps (all envs together) SB3 collects between two checks of the step budget: PPO's rollout,
+    n_steps x n_envs; SAC's train_freq x n_envs (None when train_freq counts episodes)."""
+    if config.algo == "PPO":
+        return int(config.hyperparams.get("n_steps", 2048)) * config.n_envs
+    frequency = config.hyperparams.get("train_freq", 1)
+    if isinstance(frequency, (list, tuple)):
+        if len(frequency) != 2 or str(frequency[1]) != "step":
+            return None
+        frequency = frequency[0]
+    return int(frequency) * config.n_envs
+
+
+def rl_steps(config: TrainConfig) -> int:
+    """The RL steps a run of `config` takes: `total_steps` rounded up to whole rollouts (`rollout_steps`),
+    as SB3's `learn` stops only between them."""
+    unit = rollout_steps(config)
+    if config.total_steps <= 0 or not unit:
+        return max(config.total_steps, 0)
+    return -(-config.total_steps // unit) * unit
+
+
+def runs_pretraining(config: TrainConfig, init_from=None) -> bool:
+    """Whether a run starts with the config's imitation pre-training (PPO only, not when fine-tuning)."""
+    return bool(config.pretrain) and config.algo == "PPO" and init_from is None
+
+
+def dagger_plan(config: TrainConfig) -> tuple[int, int]:
+    """(iterations, env steps per iteration) of the config's DAgger: `steps_per_iteration` rounded down to
+    whole steps of all envs, as `imitation.dagger` flies it."""
+    from ftcgym.training.imitation import DaggerSettings
+    section = {k: v for k, v in (config.pretrain or {}).items() if k != "env_kwargs"}
+    settings = DaggerSettings.from_config(section)
+    return settings.iterations, max(settings.steps_per_iteration // config.n_envs, 1) * config.n_envs
+
+
+def plan_line(config: TrainConfig, out, init_from=None) -> str:
+    """One line saying what `ftcgym train` will run: task, algorithm, envs, RL steps (and their rounding),
+    the DAgger iterations, the seed and the output folder."""
+    steps = rl_steps(config)
+    rl = f"{steps} RL steps"
+    if steps != config.total_steps:
+        envs = f"{config.n_envs} env{'s' if config.n_envs > 1 else ''}"
+        unit = (f"n_steps {config.hyperparams.get('n_steps', 2048)} x {envs}" if config.algo == "PPO"
+                else f"train_freq x {envs}")
+        rl += f" ({config.total_steps} asked, rounded up to whole rollouts of {unit} = {rollout_steps(config)})"
+    if runs_pretraining(config, init_from):
+        iterations, per_iteration = dagger_plan(config)
+        dagger = f"DAgger {iterations} iteration{'s' if iterations > 1 else ''} x {per_iteration} steps, then "
+    elif config.pretrain:
+        dagger = f"no DAgger ({'--init-from' if init_from is not None else config.algo}), "
+    else:
+        dagger = ""
+    quick = " (--quick)" if config.quick else ""
+    start = f" from {init_from}" if init_from is not None else ""
+    envs = f"{config.n_envs} env{'s' if config.n_envs > 1 else ''}"
+    return (f"ftcgym train: {config.task}{quick}, {config.algo}, {envs}, seed {config.seed}: {dagger}{rl}{start}; "
+            f"writing to {out}")

@@ -14,7 +14,7 @@ from ftcgym.benchmark.scenarios import Scenario, get_scenario
 from ftcgym.fdd import published_detector
 
 DEFAULT_SCENARIO = "quad-rotor-loss-hover"
-POLICY_NAME = "learned"
+POLICY_NAME = "learned"    # a model of a task without a benchmark name (`policy.POLICY_NAMES`)
 
 
 def score_policy(make_policy: Callable, scenario: Scenario | str = DEFAULT_SCENARIO, episodes: int | None = None,
@@ -34,9 +34,20 @@ def score_policy(make_policy: Callable, scenario: Scenario | str = DEFAULT_SCENA
     return rows
 
 
-def evaluate_model(path, scenario: Scenario | str = DEFAULT_SCENARIO, episodes: int | None = None, seed: int = 0,
+def default_scenario(path) -> str:
+    """The scenario `ftcgym evaluate` flies the model at `path` through by default: its task's
+    (`policy.DEFAULT_SCENARIOS`: quad-rotor-loss-hover, qp-pitot-incipient), else quad-rotor-loss-hover."""
+    from ftcgym.training.policy import DEFAULT_SCENARIOS, trained_env_id
+    return DEFAULT_SCENARIOS.get(trained_env_id(path), DEFAULT_SCENARIO)
+
+
+def evaluate_model(path, scenario: Scenario | str | None = None, episodes: int | None = None, seed: int = 0,
                    env_overrides: dict | None = None) -> tuple[list[dict], list[dict]]:
-    """(summary rows, episode rows) of the model saved at `path` on a benchmark scenario."""
-    from ftcgym.training.policy import LearnedPolicy
-    rows = score_policy(lambda env: LearnedPolicy.load(path, env), scenario, episodes, seed, env_overrides)
+    """(summary rows, episode rows) of the model saved at `path` on a benchmark scenario (default: its task's,
+    `default_scenario`), flown by the benchmark policy of the env id it was trained on (`policy.load_policy`)
+    under the benchmark's name (`learned-spin`, `learned-airspeed`)."""
+    from ftcgym.training.policy import load_policy, policy_name, trained_env_id
+    name = policy_name(trained_env_id(path))
+    scenario = default_scenario(path) if scenario is None else scenario
+    rows = score_policy(lambda env: load_policy(path, env), scenario, episodes, seed, env_overrides, name)
     return metrics.summarize(rows), rows

@@ -66,12 +66,15 @@ class DaggerSettings:
         return settings
 
 
-def dagger(model, venv, settings: DaggerSettings, normalizer=None, seed: int = 0, log=print) -> list[dict]:
+def dagger(model, venv, settings: DaggerSettings, normalizer=None, seed: int = 0, log=print, progress=None,
+           on_iteration=None) -> list[dict]:
     """Pre-train `model` (an SB3 actor-critic) by DAgger; returns one stats dict per iteration.
 
     `venv`: a VecEnv of the task whose envs put the expert's action in `info[EXPERT_KEY]` on reset and on
     every step. `normalizer`: the training run's VecNormalize, if any; its observation statistics are
     updated with the flown observations and the policy is fitted on normalised observations.
+    `progress`: a tqdm-like bar (`update(n)` per env step of all envs, `set_description(text)`), or None.
+    `on_iteration(stats)`: called after each iteration's fit (a checkpoint of the policy so far).
     """
     import torch
 
@@ -84,11 +87,15 @@ def dagger(model, venv, settings: DaggerSettings, normalizer=None, seed: int = 0
     observations, labels, history = [], [], []
     beta = settings.beta
     for iteration in range(settings.iterations):
-        flown = _fly(model, raw, normalizer, beta, settings.noise, settings.steps_per_iteration, rng)
+        if progress is not None:
+            progress.set_description(f"DAgger {iteration + 1}/{settings.iterations}")
+        flown = _fly(model, raw, normalizer, beta, settings.noise, settings.steps_per_iteration, rng, progress)
         observations.append(flown["observations"])
         labels.append(flown["labels"])
         if normalizer is not None:
             normalizer.obs_rms.update(flown["observations"])
+        if progress is not None:
+            progress.set_description(f"DAgger {iteration + 1}/{settings.iterations} fit")
         loss = _fit_actor(model, optimizer, _normalized(normalizer, np.concatenate(observations)),
                           np.concatenate(labels), settings, rng)
         stats = {"iteration": iteration, "beta": beta, "samples": int(sum(len(o) for o in observations)),
@@ -96,9 +103,13 @@ def dagger(model, venv, settings: DaggerSettings, normalizer=None, seed: int = 0
                  "crash_rate": flown["crashes"] / max(len(flown["returns"]), 1),
                  "mean_return": float(np.mean(flown["returns"])) if flown["returns"] else None}
         history.append(stats)
+        if on_iteration is not None:
+            on_iteration(stats)
         log(f"dagger {iteration}: beta {beta:.3f}, {stats['samples']} samples, action mse {loss:.4f}, "
             f"{stats['episodes']} episodes flown, crash rate {stats['crash_rate']:.2f}")
         beta *= settings.beta_decay
+    if progress is not None:
+        progress.set_description("DAgger final fit")
     if settings.final_epochs:
         loss = _fit_actor(model, optimizer, _normalized(normalizer, np.concatenate(observations)),
                           np.concatenate(labels), settings, rng, epochs=settings.final_epochs, anneal=True)
@@ -112,7 +123,7 @@ def dagger(model, venv, settings: DaggerSettings, normalizer=None, seed: int = 0
     return history
 
 
-def _fly(model, venv, normalizer, beta: float, noise: float, steps: int, rng) -> dict:
+def _fly(model, venv, normalizer, beta: float, noise: float, steps: int, rng, progress=None) -> dict:
     """Fly the mixture policy for `steps` env steps; the expert's labels and the episodes' returns."""
     gamma = float(getattr(model, "gamma", 0.99))
     n = venv.num_envs
@@ -129,6 +140,8 @@ def _fly(model, venv, normalizer, beta: float, noise: float, steps: int, rng) ->
         use_expert = rng.random(n) < beta
         action = np.clip(np.where(use_expert[:, None], label, learner), -1.0, 1.0).astype(np.float32)
         next_obs, rewards, dones, infos = venv.step(action)
+        if progress is not None:
+            progress.update(n)
         label = np.stack([info[EXPERT_KEY] for info in infos])
         for i in range(n):
             episode_obs[i].append(obs[i])

@@ -150,14 +150,28 @@ class LearnedAirspeedPolicy(SavedModelPolicy):
 
 # env id of a training task -> the policy class that flies its models in the benchmark (`load_policy`)
 POLICY_CLASSES = {TASK_ENV_ID: LearnedPolicy, AIRSPEED_ENV_ID: LearnedAirspeedPolicy}
+# env id of a training task -> the benchmark's name of its learned policy (`ftcgym.training.shipped.SHIPPED`)
+POLICY_NAMES = {TASK_ENV_ID: "learned-spin", AIRSPEED_ENV_ID: "learned-airspeed"}
+# env id of a training task -> the scenario `ftcgym evaluate` flies its models through by default
+DEFAULT_SCENARIOS = {TASK_ENV_ID: "quad-rotor-loss-hover", AIRSPEED_ENV_ID: "qp-pitot-incipient"}
+
+
+def policy_name(env_id: str) -> str:
+    """The benchmark's name for a policy learned on `env_id`: `learned-spin`, `learned-airspeed`, else `learned`."""
+    return POLICY_NAMES.get(env_id, "learned")
+
+
+def trained_env_id(path) -> str:
+    """The env id the model saved at `path` was trained on (its manifest's; the rotor-loss task without one)."""
+    _, _, manifest_path = model_files(path)
+    manifest = json.loads(manifest_path.read_text()) if manifest_path.is_file() else {}
+    return manifest.get("config", {}).get("env_id", TASK_ENV_ID)
 
 
 def load_policy(path, env):
     """The model saved by `ftcgym train` at `path` as a benchmark policy for `env`, with the policy class
     of the env id it was trained on (`POLICY_CLASSES`; `LearnedPolicy` for any other id)."""
-    _, _, manifest_path = model_files(path)
-    manifest = json.loads(manifest_path.read_text()) if manifest_path.is_file() else {}
-    env_id = manifest.get("config", {}).get("env_id", TASK_ENV_ID)
+    env_id = trained_env_id(path)
     _check_vehicle(path, env_id, env.unwrapped)
     return POLICY_CLASSES.get(env_id, LearnedPolicy).load(path, env)
 

@@ -8,26 +8,34 @@ Writes to OUT:
     model.zip, vecnormalize.pkl     the final model and its observation/reward normalisation
     manifest.json                   command, config, seed, steps, wall time, git commit, versions (and the
                                     imitation pre-training's per-iteration statistics when the config has one)
-    checkpoints/                    model_<steps>_steps.zip, model_vecnormalize_<steps>_steps.pkl
+    checkpoints/                    model_<steps>_steps.zip, model_vecnormalize_<steps>_steps.pkl; with
+                                    pre-training, dagger_<i>.zip, dagger_<i>_vecnormalize.pkl after iteration i
     pretrained/model.zip, pretrained/vecnormalize.pkl   after imitation pre-training, before RL
     best/model.zip, best/vecnormalize.pkl, evaluations.jsonl   when the config has an `eval` section
     logs/progress.csv               training curves (SB3's logger)
     tb/                             TensorBoard event files (when tensorboard is installed)
+
+RL runs `config.rl_steps(config)` steps (the requested ones rounded up to whole rollouts); tqdm bars with a
+total and an ETA cover the DAgger's labelled steps and the RL steps. Ctrl-C publishes the model so far
+(`TrainingInterrupted`).
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 import importlib.util
 import json
 import platform
+import signal
 import subprocess
+import threading
 import time
 from pathlib import Path
 
 import gymnasium as gym
 
 from ftcgym.benchmark.outputs import OutputFolder
-from ftcgym.training.config import ACTIVATIONS, TrainConfig
+from ftcgym.training.config import ACTIVATIONS, TrainConfig, dagger_plan, rl_steps
 from ftcgym.training.policy import MANIFEST_FILE, MODEL_FILE, NORMALIZER_FILE
 
 #: what a run writes in OUT as it trains (the final files are staged and published at the end)
@@ -72,13 +80,27 @@ def build_vec_env(config: TrainConfig, extra_kwargs: dict | None = None, normali
     return venv
 
 
+class TrainingInterrupted(KeyboardInterrupt):
+    """A run stopped by Ctrl-C (KeyboardInterrupt) after its model existed: the model so far, its statistics
+    and a manifest with `"interrupted"` were published to `out` before this was raised."""
+
+    def __init__(self, out: Path, manifest: dict):
+        super().__init__(f"interrupted {manifest['interrupted']}; the model so far is in {out}")
+        self.out, self.manifest = Path(out), manifest
+
+
 def train(config: TrainConfig, out: str | Path, progress: bool = True, command: str | None = None,
           verbose: int = 0, init_from: str | Path | None = None) -> dict:
     """Run `config`, write the outputs listed in the module docstring to `out`; returns the manifest.
     `init_from`: a saved model (folder or .zip, e.g. a shipped policy) whose weights and observation
     statistics start the run instead of the config's pre-training (fine-tuning). Holds `out`'s lock from the
     start (`outputs.OutputFolder`: FolderInUse if another run holds it); the model, its statistics and the
-    manifest are staged and published together at the end."""
+    manifest are staged and published together at the end. RL runs `config.rl_steps(config)` steps: the
+    requested `total_steps` rounded up to whole rollouts.
+
+    A KeyboardInterrupt (Ctrl-C) during the pre-training or RL publishes the model so far the same way, its
+    manifest marked `"interrupted"`, and raises `TrainingInterrupted`; one before the model is built leaves
+    the folder as it was."""
     with OutputFolder(out) as folder:
         return _train(config, folder, progress, command, verbose, init_from)
 
@@ -94,13 +116,18 @@ def _train(config: TrainConfig, folder: OutputFolder, progress: bool, command: s
     # shared 2-core machine, slowed PPO's update by ~10x).
     torch.set_num_threads(config.torch_threads)
     out = folder.path
+    steps = rl_steps(config)
     venv = build_vec_env(config)
-    tensorboard = importlib.util.find_spec("tensorboard") is not None
-    if not tensorboard:
-        print("ftcgym train: tensorboard is not installed; no TensorBoard logs (pip install tensorboard)")
-    model = algorithm_class(config.algo)(
-        config.policy, venv, seed=config.seed, policy_kwargs=policy_kwargs(config) or None, device="cpu",
-        verbose=verbose, **config.hyperparams)
+    try:
+        tensorboard = importlib.util.find_spec("tensorboard") is not None
+        if not tensorboard and (progress or verbose):
+            print("ftcgym train: tensorboard is not installed, so no TensorBoard logs (pip install tensorboard)")
+        model = algorithm_class(config.algo)(
+            config.policy, venv, seed=config.seed, policy_kwargs=policy_kwargs(config) or None, device="cpu",
+            verbose=verbose, **config.hyperparams)
+    except BaseException:
+        close_quietly(venv)
+        raise
     # Our own logger: training curves always land in OUT/logs/progress.csv (and OUT/tb with tensorboard);
     # SB3's default would open an empty SB3-<date> folder in /tmp for every run.
     model.set_logger(configure_logger(str(out / "logs"), ["csv"] + (["stdout"] if verbose else []),
@@ -113,32 +140,83 @@ def _train(config: TrainConfig, folder: OutputFolder, progress: bool, command: s
             int(config.eval.get("episodes", 4)), int(config.eval.get("seed", 1000)),
             config.eval.get("env_kwargs"), config.env_id, config.env_kwargs, out / "best",
             out / "evaluations.jsonl", verbose=1 if progress or verbose else 0))
-    sb3_bar = progress and all(importlib.util.find_spec(m) for m in ("tqdm", "rich"))
-    if progress and not sb3_bar:
-        callbacks.append(TqdmProgressCallback(config.total_steps))
+    bar = TqdmProgressCallback(steps) if progress else None   # tqdm: a total and an ETA over the RL steps
+    if bar is not None:
+        callbacks.append(bar)
     started = time.perf_counter()
-    pretraining = None
-    if init_from is not None:
-        _initialise(model, venv, init_from, config)
-    elif config.pretrain and config.algo != "PPO":
-        print(f"ftcgym train: the config's imitation pre-training fits PPO's actor-critic; skipped for {config.algo}")
-    elif config.pretrain:
-        pretraining = _pretrain(config, model, venv, out / "pretrained", verbose=progress or verbose)
-    pretrain_time = time.perf_counter() - started
-    if config.total_steps > 0:
-        model.learn(config.total_steps, callback=CallbackList(callbacks), progress_bar=sb3_bar)
-    wall_time = time.perf_counter() - started
-    model.save(folder.staged(MODEL_FILE))
-    if config.normalize:
-        venv.save(str(folder.staged(NORMALIZER_FILE)))
-    venv.close()
-    manifest = _manifest(config, model, wall_time, command, rl_time=wall_time - pretrain_time)
-    manifest["init_from"] = str(init_from) if init_from is not None else None
-    if pretraining is not None:
-        manifest["pretrain"] = {"wall_time_s": pretrain_time, "iterations": pretraining}
-    folder.staged(MANIFEST_FILE).write_text(json.dumps(manifest, indent=2) + "\n")
-    folder.publish(also=tuple(name for name in IN_PLACE if (out / name).exists()))
+    pretraining: list[dict] | None = None
+    pretrain_time = 0.0
+    interrupted = None
+    try:
+        if init_from is not None:
+            _initialise(model, venv, init_from, config)
+        elif config.pretrain and config.algo != "PPO":
+            print(f"ftcgym train: the config's imitation pre-training fits PPO's actor-critic; "
+                  f"skipped for {config.algo}")
+        elif config.pretrain:
+            pretraining = []
+            try:
+                _pretrain(config, model, venv, out, pretraining, progress=progress, verbose=bool(verbose),
+                          tensorboard=tensorboard)
+            except KeyboardInterrupt:
+                interrupted = f"in DAgger iteration {len(pretraining) + 1} of {dagger_plan(config)[0]}"
+                raise
+        pretrain_time = time.perf_counter() - started
+        if steps > 0:
+            try:
+                model.learn(steps, callback=CallbackList(callbacks))
+            except KeyboardInterrupt:
+                interrupted = f"at RL step {model.num_timesteps} of {steps}"
+                raise
+    except KeyboardInterrupt:
+        if interrupted is None:          # between the phases
+            interrupted = f"at RL step {model.num_timesteps} of {steps}"
+        if bar is not None:
+            bar.close()
+        if pretraining is not None and not pretrain_time:
+            pretrain_time = time.perf_counter() - started
+    with _sigint_ignored():              # a second Ctrl-C must not leave a half-written model
+        wall_time = time.perf_counter() - started
+        model.save(folder.staged(MODEL_FILE))
+        if config.normalize:
+            venv.save(str(folder.staged(NORMALIZER_FILE)))
+        close_quietly(venv)
+        manifest = _manifest(config, model, wall_time, command, rl_time=wall_time - pretrain_time)
+        manifest["init_from"] = str(init_from) if init_from is not None else None
+        manifest["interrupted"] = interrupted
+        if pretraining is not None:
+            manifest["pretrain"] = {"wall_time_s": pretrain_time, "iterations": pretraining}
+        folder.staged(MANIFEST_FILE).write_text(json.dumps(manifest, indent=2) + "\n")
+        folder.publish(also=tuple(name for name in IN_PLACE if (out / name).exists()))
+    if interrupted is not None:
+        raise TrainingInterrupted(out, manifest)
     return manifest
+
+
+@contextlib.contextmanager
+def _sigint_ignored():
+    """SIGINT ignored inside the block (in the main thread; elsewhere a no-op)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def close_quietly(venv) -> None:
+    """Close a VecEnv; after a Ctrl-C its worker processes may already have quit (SB3's workers end on
+    KeyboardInterrupt), so a broken pipe ends them by force instead of raising."""
+    try:
+        venv.close()
+    except (OSError, EOFError):
+        inner = venv
+        while hasattr(inner, "venv"):
+            inner = inner.venv
+        for process in getattr(inner, "processes", []):
+            process.terminate()
 
 
 def policy_kwargs(config: TrainConfig) -> dict:
@@ -173,29 +251,59 @@ def _initialise(model, venv, path, config: TrainConfig) -> None:
             model.policy.log_std.fill_(log_std)
 
 
-def _pretrain(config: TrainConfig, model, venv, folder: Path, verbose: bool) -> list[dict]:
+def _pretrain(config: TrainConfig, model, venv, out: Path, history: list, progress: bool, verbose: bool,
+              tensorboard: bool = False) -> None:
     """Imitation pre-training (`imitation.dagger`) on its own copy of the envs with the section's
-    env_kwargs (the expert's labels); fills the run's VecNormalize observation statistics and saves the
-    pre-trained model to `folder` (model.zip, vecnormalize.pkl) before any RL."""
+    env_kwargs (the expert's labels); fills the run's VecNormalize observation statistics, appends each
+    iteration's statistics to `history` and checkpoints the policy so far after each
+    (OUT/checkpoints/dagger_<i>.zip and dagger_<i>_vecnormalize.pkl), then saves the pre-trained model to
+    OUT/pretrained (model.zip, vecnormalize.pkl) before any RL. `progress`: a tqdm bar over the labelled
+    steps of all iterations (a total and an ETA), the iterations' lines printed above it. `tensorboard`: each
+    iteration's statistics also go to OUT/tb as dagger/* against the labelled samples so far."""
     from stable_baselines3.common.vec_env import VecNormalize
+    from tqdm import tqdm
 
     from ftcgym.training.imitation import DaggerSettings, dagger
 
     section = dict(config.pretrain)
     extra = section.pop("env_kwargs", None) or {}
     settings = DaggerSettings.from_config(section)
-    expert_venv = build_vec_env(config, extra, normalize=False)
+    iterations, per_iteration = dagger_plan(config)
     normalizer = venv if isinstance(venv, VecNormalize) else None
+    checkpoints = out / "checkpoints"
+
+    logger = configure_logger(str(out / "logs"), [], str(out / "tb")) if tensorboard else None
+
+    def checkpoint(stats: dict) -> None:
+        history.append(stats)
+        if logger is not None:
+            for key in ("action_mse", "beta", "crash_rate", "mean_return"):
+                if stats[key] is not None:
+                    logger.record(f"dagger/{key}", stats[key])
+            logger.dump(step=stats["samples"])
+        checkpoints.mkdir(parents=True, exist_ok=True)
+        name = f"dagger_{stats['iteration'] + 1}"
+        model.save(checkpoints / f"{name}.zip")
+        if normalizer is not None:
+            normalizer.save(str(checkpoints / f"{name}_{NORMALIZER_FILE}"))
+
+    bar = tqdm(total=iterations * per_iteration, unit="step", desc="DAgger", dynamic_ncols=True) if progress else None
+    log = bar.write if bar is not None else print if verbose else (lambda *_: None)
+    expert_venv = build_vec_env(config, extra, normalize=False)
     try:
-        history = dagger(model, expert_venv, settings, normalizer, seed=config.seed,
-                         log=print if verbose else (lambda *_: None))
+        dagger(model, expert_venv, settings, normalizer, seed=config.seed, log=log, progress=bar,
+               on_iteration=checkpoint)
     finally:
-        expert_venv.close()
+        if bar is not None:
+            bar.close()
+        if logger is not None:
+            logger.close()
+        close_quietly(expert_venv)
+    folder = out / "pretrained"
     folder.mkdir(parents=True, exist_ok=True)
     model.save(folder / MODEL_FILE)
     if normalizer is not None:
         normalizer.save(str(folder / NORMALIZER_FILE))
-    return history
 
 
 def configure_logger(folder: str, formats: list[str], tensorboard_folder: str | None):
@@ -224,7 +332,10 @@ def _manifest(config: TrainConfig, model, wall_time: float, command: str | None,
         "algo": config.algo,
         "n_envs": config.n_envs,
         "total_steps": config.total_steps,
-        "steps": int(model.num_timesteps),
+        "requested_steps": config.total_steps,      # RL steps asked for (the config's or --total-steps)
+        "rl_steps": rl_steps(config),               # ... rounded up to whole rollouts: what a full run takes
+        "steps": int(model.num_timesteps),          # ... and what this run took
+        "quick": config.quick,
         "wall_time_s": wall_time,
         "steps_per_s": model.num_timesteps / rl_time if rl_time > 0 else None,   # RL steps over RL time
         "git_commit": git_commit(),
