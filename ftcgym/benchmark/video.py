@@ -28,6 +28,7 @@ from ftcgym.agents import make_policy
 from ftcgym.benchmark.runner import make_env, roll_out, score_episode
 from ftcgym.benchmark.scenarios import Scenario, get_scenario
 from ftcgym.fdd import published_detector
+from ftcgym.models.faults import ROTOR_KINDS
 
 BEFORE_S, AFTER_S = 1.0, 3.0     # default window around the fault onset
 FPS = 30
@@ -102,17 +103,19 @@ def speed_label(slowmo: float) -> str:
     return f"{slowmo:g}x slow motion" if slowmo > 1.0 else f"{1.0 / slowmo:g}x fast forward"
 
 
-def overlay_lines(t: float, events: FlightEvents, slowmo: float = 1.0) -> list[tuple[str, tuple]]:
-    """The overlay at simulated time `t`, as (text, RGB) lines: the episode, the clock, then the fault, the
-    alarm and the recovery, each dim until its time has come."""
+def overlay_lines(t: float, events: FlightEvents, slowmo: float = 1.0, altitude: float | None = None,
+                  airspeed: float | None = None) -> list[tuple[str, tuple]]:
+    """The overlay at simulated time `t`, as (text, RGB) lines: the episode, the clock (and the true altitude
+    and airspeed when given), then the fault, the alarm and the recovery, each dim until its time has come."""
     lines = [(f"{events.scenario}  {events.policy}  seed {events.seed}", WHITE),
              (f"t = {t:7.3f} s   {speed_label(slowmo)}", WHITE)]
+    if altitude is not None and airspeed is not None:
+        lines.append((f"altitude {altitude:6.2f} m   airspeed {airspeed:5.2f} m/s", WHITE))
     onset = events.onset
     if onset is None:
         lines.append(("fault      none", DIM))
     else:
-        target = "" if events.fault_target is None else f" on {_target(events.fault_target)}"
-        text = f"fault      {events.fault_kind}{target} at {onset:.3f} s"
+        text = f"fault      {fault_text(events.fault_kind, events.fault_target)} at {onset:.3f} s"
         lines.append((text, RED if t >= onset else DIM))
     if events.detector is not None:
         alarm = events.alarm_time
@@ -133,6 +136,16 @@ def overlay_lines(t: float, events: FlightEvents, slowmo: float = 1.0) -> list[t
     if events.crashed and t >= events.end_time - 1e-9:
         lines.append((f"CRASHED    at {events.end_time:.3f} s", RED))
     return lines
+
+
+def fault_text(kind: str, target) -> str:
+    """'rotor_loss of rotor 3', 'loe of rotors 0+2', 'pitot_blockage (zero)'."""
+    if target is None:
+        return str(kind)
+    if kind in ROTOR_KINDS:
+        plural = "s" if isinstance(target, (list, tuple)) and len(target) > 1 else ""
+        return f"{kind} of rotor{plural} {_target(target)}"
+    return f"{kind} ({_target(target)})"
 
 
 def _target(target) -> str:
@@ -225,7 +238,7 @@ def film_episode(scenario: Scenario | str, policy_name: str, seed: int, out: str
     overlay = Overlay(size[1])
 
     env = make_env(scenario, {**env_overrides, "render_mode": "rgb_array", "render_size": tuple(size)})
-    state = {"step": 0, "frame": 0, "diverged_at": None, "image": None, "time": 0.0}
+    state = {"step": 0, "frame": 0, "diverged_at": None, "image": None, "lines": []}
 
     def on_step(obs, info) -> None:
         index, t = state["step"], info["time"]
@@ -233,14 +246,16 @@ def film_episode(scenario: Scenario | str, policy_name: str, seed: int, out: str
         if state["diverged_at"] is None and (index >= len(log.time) or
                                              not np.array_equal(info["truth"]["position"], log.position[index])):
             state["diverged_at"] = t
-        image = None
+        image = lines = None
         while state["frame"] < len(times) and times[state["frame"]] <= t + half_step + 1e-9:
             if image is None:
                 image = env.render()
-            writer.append_data(overlay.draw(image, overlay_lines(t, events, slowmo)))
+                truth = info["truth"]
+                lines = overlay_lines(t, events, slowmo, -float(truth["position"][2]), float(truth["airspeed"]))
+            writer.append_data(overlay.draw(image, lines))
             state["frame"] += 1
         if image is not None:
-            state["image"], state["time"] = image, t
+            state["image"], state["lines"] = image, lines
 
     os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
     writer = imageio.get_writer(out, format="FFMPEG", mode="I", fps=fps, codec="libx264", pixelformat="yuv420p",
@@ -251,7 +266,7 @@ def film_episode(scenario: Scenario | str, policy_name: str, seed: int, out: str
         finally:
             env.close()
         while state["frame"] < len(times):   # none left unless the filmed flight ended early (it diverged)
-            writer.append_data(overlay.draw(state["image"], overlay_lines(state["time"], events, slowmo)))
+            writer.append_data(overlay.draw(state["image"], state["lines"]))
             state["frame"] += 1
     finally:
         writer.close()

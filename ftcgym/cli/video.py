@@ -71,8 +71,9 @@ def run(args, argv: list[str]) -> int:
 
 
 def _summary(events) -> list[str]:
+    from ftcgym.benchmark.video import fault_text
     parts = ["no fault" if events.onset is None else
-             f"fault {events.fault_kind} on {events.fault_target} at {events.onset:.3f} s"]
+             f"fault {fault_text(events.fault_kind, events.fault_target)} at {events.onset:.3f} s"]
     if events.detector is not None:
         parts.append(f"alarm {events.detector} at {events.alarm_time:.3f} s" if events.alarm_time is not None
                      else f"no alarm from {events.detector}")

@@ -62,7 +62,8 @@ class PyBulletWorld:
         p.setGravity(0.0, 0.0, -GRAVITY, physicsClientId=c)
         p.setTimeStep(1.0 / self.physics_hz, physicsClientId=c)
         ground = p.createCollisionShape(p.GEOM_PLANE, physicsClientId=c)
-        self.ground = p.createMultiBody(0.0, ground, physicsClientId=c)
+        drawn = -1 if self.look is None else self.look.ground_visual(c)   # -1: the collision plane is drawn
+        self.ground = p.createMultiBody(0.0, ground, drawn, physicsClientId=c)
         half = [s / 2 for s in self.body_size]
         shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=c)
         if self.look is None:
@@ -137,7 +138,7 @@ class PyBulletWorld:
         target = [target_ned[0], -target_ned[1], -target_ned[2]]
         distance = 3.0 if self.look is None else self.look.camera_distance
         view = p.computeViewMatrixFromYawPitchRoll(target, distance, 45.0, -25.0, 0.0, 2, physicsClientId=c)
-        proj = p.computeProjectionMatrixFOV(60.0, width / height, 0.05, 100.0, physicsClientId=c)
+        proj = p.computeProjectionMatrixFOV(60.0, width / height, 0.05, 2000.0, physicsClientId=c)
         _, _, rgba, _, _ = p.getCameraImage(width, height, view, proj, renderer=p.ER_TINY_RENDERER,
                                             physicsClientId=c)
         return np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[:, :, :3]
