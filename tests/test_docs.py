@@ -28,7 +28,7 @@ def test_the_results_table_quotes_commands():
     assert len(quoted_commands(table)) >= 10
 
 
-@pytest.mark.parametrize("page", ["README.md", "docs/results.md", "docs/benchmark.md"])
+@pytest.mark.parametrize("page", ["README.md", "docs/results.md", "docs/benchmark.md", "docs/howto/video.md"])
 def test_the_quoted_commands_parse(page):
     parser = build_parser()
     for command in quoted_commands((ROOT / page).read_text()):

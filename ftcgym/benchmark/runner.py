@@ -120,9 +120,11 @@ class _Recorder:
                           **{name: np.array(values) for name, values in self.quadplane.items()})
 
 
-def roll_out(env: gym.Env, policy, seed: int, detector: str | None = None, on_step=None) -> EpisodeLog:
+def roll_out(env: gym.Env, policy, seed: int, detector: str | None = None, on_step=None,
+             until: float | None = None) -> EpisodeLog:
     """Fly one episode of `policy` in `env` from `env.reset(seed=seed)` and record it; `on_step(obs, info)`,
-    if given, sees every recorded step too (the reset first, the final step last)."""
+    if given, sees every recorded step too (the reset first, the final step last). `until` (s), if given, ends
+    the flight early, at the first step at or past that time."""
     obs, info = env.reset(seed=seed)
     policy.reset(obs, policy_view(info, policy))
     recorder = _Recorder(detector)
@@ -132,7 +134,7 @@ def roll_out(env: gym.Env, policy, seed: int, detector: str | None = None, on_st
         if on_step is not None:
             on_step(obs, info)
         obs, _, terminated, truncated, info = env.step(action)
-        if terminated or truncated:
+        if terminated or truncated or (until is not None and info["time"] >= until):
             break
     recorder.record(info, thrust_axis_reference(policy), obs)
     if on_step is not None:

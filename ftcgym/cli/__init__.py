@@ -13,6 +13,8 @@
     ftcgym train --config FILE_OR_TASK [--quick] [--algo PPO|SAC] [--n-envs N] [--total-steps N]
                  [--pretrain-iterations N] [--seed S] [--out DIR] [--init-from MODEL] [--no-progress]
     ftcgym evaluate MODEL [--scenario NAME] [--episodes N] [--seed S] [--env-kwargs JSON]
+    ftcgym video --scenario NAME [--policy NAME] [--seed S] --out FILE.mp4 [--slowmo K] [--before S] [--after S]
+                 [--fps N] [--size WxH] [--env-kwargs JSON] [--detector NAME] [--detector-kwargs JSON]
 
 A policy, detector or scenario NAME is a built-in name, a name an installed package registers (entry-point
 groups `ftcgym.policies`, `ftcgym.detectors`, `ftcgym.scenarios`) or MODULE:ATTR; `ftcgym bench --list`
@@ -27,10 +29,10 @@ import zipfile
 
 import yaml
 
-from . import airdata_study, bench, evaluate, perf, replay, sweep, thresholds, train, trim
+from . import airdata_study, bench, evaluate, perf, replay, sweep, thresholds, train, trim, video
 from .common import package_version
 
-COMMANDS = (bench, sweep, replay, airdata_study, thresholds, perf, trim, train, evaluate)
+COMMANDS = (bench, sweep, replay, airdata_study, thresholds, perf, trim, train, evaluate, video)
 #: errors from what the user passed: a value out of range, an unreadable or malformed file, an unwritable folder
 USER_ERRORS = (ValueError, OSError, yaml.YAMLError, zipfile.BadZipFile)
 

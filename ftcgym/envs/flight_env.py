@@ -16,6 +16,9 @@ from ..models.tasks import make_task
 from ..models.wind import DrydenWind
 from .world import PyBulletWorld
 
+RENDER_SIZE = (480, 360)     # pixels, width x height of an rgb_array frame
+MAX_RENDER_SIDE = 4096
+
 
 class FlightEnv(gym.Env):
     """Base class. Subclasses set the class constants, call `_setup` first in `__init__`, and implement
@@ -38,11 +41,11 @@ class FlightEnv(gym.Env):
     CRASH_TILT = np.deg2rad(60.0)   # rad, ground contact more tilted than this is a crash
 
     def _setup(self, vehicle, vehicle_overrides, wind, faults, task, max_episode_seconds, physics_hz, agent_hz,
-               render_mode, unknown: dict) -> None:
+               render_mode, render_size=RENDER_SIZE, unknown: dict | None = None) -> None:
         """Validate the shared keyword arguments and build the task, wind and faults (`_open_world` follows,
         once the subclass has validated the rest, so a failed make holds no PyBullet client)."""
         self.world = None
-        no_unknown(unknown, KEYWORDS, "gym.make keyword")
+        no_unknown(unknown or {}, KEYWORDS, "gym.make keyword")
         self.vehicle = vehicle
         self.params = self._configured_params = self._make_params(vehicle, vehicle_overrides)
         self.physics_hz, self.agent_hz = check_rates(physics_hz, agent_hz)
@@ -52,6 +55,9 @@ class FlightEnv(gym.Env):
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise ValueError(f"render_mode: {render_mode!r}; accepted: None, {self.metadata['render_modes']}")
         self.render_mode = render_mode
+        self.render_size = check_render_size(render_size)
+        # gymnasium's RecordVideo films one frame per step at render_fps: the agent rate makes it real time
+        self.metadata = {**self.metadata, "render_fps": _whole(self.agent_hz)}
         self.task = self._check_task(make_task(task))
         self.wind = self._configured_wind = DrydenWind.from_config(wind, self.dt)
         self.fault_specs = self._configured_faults = self._parse_faults(faults)
@@ -117,7 +123,8 @@ class FlightEnv(gym.Env):
 
     def _size_body(self) -> None:
         """The rigid body and the ground-contact check of `self.params` (the world builds the body at reset)."""
-        self.world.set_body(self.params.mass, self.params.inertia, self.params.body_size)
+        look = self._make_look() if self.render_mode is not None else None   # visuals only where drawn
+        self.world.set_body(self.params.mass, self.params.inertia, self.params.body_size, look)
         # Below this altitude the body may touch the ground: 1.5 x half its diagonal (contacts are queried only here).
         self._ground_check_altitude = 0.75 * float(np.linalg.norm(self.params.body_size))
 
@@ -202,9 +209,23 @@ class FlightEnv(gym.Env):
                 "crashed": self._crashed, "termination": self._termination}
 
     def render(self):
+        """`rgb_array`: the chase camera's frame (`render_size`), the vehicle drawn with its rotors coloured by
+        state (`envs.visuals`); `human`: the GUI's look brought up to date (`step` calls this)."""
+        if self.render_mode is None:
+            return None
+        self._check_open("render")
+        self.world.show(*self._look_state())   # rotor colours and wing skew change only when a frame is drawn
         if self.render_mode == "rgb_array":
-            return self.world.camera_image(self._pos)
+            return self.world.camera_image(self._pos, *self.render_size)
         return None
+
+    def _make_look(self):
+        """The vehicle's `envs.visuals` look for `self.params` (subclasses)."""
+        return None
+
+    def _look_state(self) -> tuple:
+        """(rotors, skew) that `PyBulletWorld.show` draws (subclasses)."""
+        return None, 0.0
 
     def close(self):
         if getattr(self, "world", None) is not None:
@@ -228,7 +249,25 @@ def check_action(action, low, high, what: str) -> np.ndarray:
 
 #: the keyword arguments of the simulator envs (`gym.make`)
 KEYWORDS = ("vehicle", "vehicle_overrides", "wind", "faults", "task", "max_episode_seconds", "physics_hz", "agent_hz",
-            "sensors", "render_mode")
+            "sensors", "render_mode", "render_size")
+def check_render_size(size) -> tuple[int, int]:
+    """(width, height) in pixels: two whole numbers in [16, MAX_RENDER_SIDE]."""
+    try:
+        width, height = size
+        ok = all(float(v).is_integer() and 16 <= v <= MAX_RENDER_SIDE for v in (width, height))
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise ValueError(f"render_size: expected (width, height), whole numbers of pixels in [16, "
+                         f"{MAX_RENDER_SIDE}], got {size!r}")
+    return int(width), int(height)
+
+
+def _whole(rate: float):
+    """A rate as an int when it is a whole number (gymnasium's render_fps is an int by convention)."""
+    return int(rate) if float(rate).is_integer() else float(rate)
+
+
 PHYSICS_HZ = Range(50.0, 20_000.0)   # Hz: coarser steps miss the motor lag, finer ones add cost, not accuracy
 MAX_SUBSTEPS = 1000           # physics steps per agent step
 

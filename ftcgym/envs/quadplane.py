@@ -35,7 +35,8 @@ from ..models.quadplane_aero import aero_wrench
 from ..models.rotors import RotorSet
 from ..models.sensors import ACCEL_LIMIT, GYRO_LIMIT, QuadPlaneSensorConfig, QuadPlaneSensors, SensorLimits
 from ..models.vsqp import make_vsqp_params
-from .flight_env import FlightEnv, check_action
+from .flight_env import RENDER_SIZE, FlightEnv, check_action
+from .visuals import QuadPlaneLook
 
 #: the sensors (observation keys) a sensor fault may target, with their sizes
 SENSOR_SIZES = {"gyro": 3, "accel": 3, "attitude": 4, "position": 3, "velocity": 3, "pitot_airspeed": 1,
@@ -59,9 +60,10 @@ class QuadPlaneEnv(FlightEnv):
 
     def __init__(self, vehicle: str = "vsqp", vehicle_overrides: dict | None = None, wind: dict | None = None,
                  faults=None, task="mission", max_episode_seconds: float = 240.0, physics_hz: float = 500.0,
-                 agent_hz: float = 100.0, sensors: dict | None = None, render_mode: str | None = None, **unknown):
+                 agent_hz: float = 100.0, sensors: dict | None = None, render_mode: str | None = None,
+                 render_size=RENDER_SIZE, **unknown):
         self._setup(vehicle, vehicle_overrides, wind, faults, task, max_episode_seconds, physics_hz, agent_hz,
-                    render_mode, unknown)
+                    render_mode, render_size, unknown)
         self._sensor_config = QuadPlaneSensorConfig.from_overrides(sensors)
         self._surface_alpha = 1.0 - math.exp(-self.dt / SURFACE_TIME_CONSTANT)
         self.observation_space = self._make_observation_space(self.params)
@@ -75,6 +77,12 @@ class QuadPlaneEnv(FlightEnv):
 
     def _parse_faults(self, faults):
         return parse_faults(faults, 4, SENSOR_SIZES, QUADPLANE_KINDS)
+
+    def _make_look(self):
+        return QuadPlaneLook(self.params)
+
+    def _look_state(self) -> tuple:
+        return self.hover_rotors, self.skew
 
     def _build_vehicle(self) -> None:
         """Hover rotors, pusher, sensors and surface limits of the parameter set `self.params`."""

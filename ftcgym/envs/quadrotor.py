@@ -29,7 +29,8 @@ from ..models.geometry import quat_from_euler
 from ..models.quadrotor import YAW_SIGNS, make_params, rotational_drag_moment
 from ..models.rotors import RotorSet
 from ..models.sensors import ACCEL_LIMIT, GYRO_LIMIT, QuadrotorSensors, SensorConfig, SensorLimits
-from .flight_env import FlightEnv, check_action
+from .flight_env import RENDER_SIZE, FlightEnv, check_action
+from .visuals import QuadrotorLook
 
 #: the sensors (observation keys) a sensor fault may target, with their sizes
 SENSOR_SIZES = {"gyro": 3, "accel": 3, "attitude": 4, "position": 3, "velocity": 3, "rotor_speed": 4}
@@ -47,9 +48,10 @@ class QuadrotorEnv(FlightEnv):
 
     def __init__(self, vehicle: str = "bebop2", vehicle_overrides: dict | None = None, wind: dict | None = None,
                  faults=None, task="hover", max_episode_seconds: float = 30.0, physics_hz: float = 500.0,
-                 agent_hz: float = 500.0, sensors: dict | None = None, render_mode: str | None = None, **unknown):
+                 agent_hz: float = 500.0, sensors: dict | None = None, render_mode: str | None = None,
+                 render_size=RENDER_SIZE, **unknown):
         self._setup(vehicle, vehicle_overrides, wind, faults, task, max_episode_seconds, physics_hz, agent_hz,
-                    render_mode, unknown)
+                    render_mode, render_size, unknown)
         self._sensor_config = SensorConfig.from_overrides(sensors)
         self.observation_space = self._make_observation_space(self.params)
         self._limits = {key: (box.low, box.high) for key, box in self.observation_space.spaces.items()}
@@ -62,6 +64,12 @@ class QuadrotorEnv(FlightEnv):
 
     def _parse_faults(self, faults):
         return parse_faults(faults, 4, SENSOR_SIZES)
+
+    def _make_look(self):
+        return QuadrotorLook(self.params)
+
+    def _look_state(self) -> tuple:
+        return self.rotors, 0.0
 
     def _build_vehicle(self) -> None:
         """Rotors, sensors and drag of the parameter set `self.params`."""

@@ -43,31 +43,40 @@ with _stderr_silenced():
 class PyBulletWorld:
     """One PyBullet client stepping one rigid body at a fixed rate."""
 
-    def __init__(self, physics_hz: float, mass: float, inertia, body_size, gui: bool = False):
+    def __init__(self, physics_hz: float, mass: float, inertia, body_size, gui: bool = False, look=None):
         self.client = p.connect(p.GUI if gui else p.DIRECT)
         # Disconnects when the world is collected: an env dropped without close() releases its client.
         self._release = weakref.finalize(self, _disconnect, self.client)
         self.physics_hz, self.body_size = physics_hz, body_size
+        self.look = look     # what a frame shows of the vehicle (`visuals`); None: a plain box
         self.mass = mass
         self.inertia = list(inertia)
         self.half_height = body_size[2] / 2
         self._build()
 
     def _build(self) -> None:
-        """The ground plane and the vehicle's box, in a freshly reset simulation."""
+        """The ground plane and the vehicle's box, in a freshly reset simulation, drawn as its look (visual
+        shapes only: the collision box, mass and inertia are the same with and without one)."""
         c = self.client
         p.resetSimulation(physicsClientId=c)
         p.setGravity(0.0, 0.0, -GRAVITY, physicsClientId=c)
         p.setTimeStep(1.0 / self.physics_hz, physicsClientId=c)
         ground = p.createCollisionShape(p.GEOM_PLANE, physicsClientId=c)
-        self.ground = p.createMultiBody(0.0, ground, physicsClientId=c)
+        drawn = -1 if self.look is None else self.look.ground_visual(c)   # -1: the collision plane is drawn
+        self.ground = p.createMultiBody(0.0, ground, drawn, physicsClientId=c)
         half = [s / 2 for s in self.body_size]
         shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=half, physicsClientId=c)
-        visual = p.createVisualShape(p.GEOM_BOX, halfExtents=half, rgbaColor=[0.2, 0.3, 0.8, 1], physicsClientId=c)
+        if self.look is None:
+            visual = p.createVisualShape(p.GEOM_BOX, halfExtents=half, rgbaColor=[0.2, 0.3, 0.8, 1],
+                                         physicsClientId=c)
+        else:
+            visual = self.look.base_visual(c)
         self.body = p.createMultiBody(self.mass, shape, visual, basePosition=[0, 0, 1], physicsClientId=c)
         # Aerodynamic damping is modelled explicitly; Bullet's default damping would add an unmodelled drag.
         p.changeDynamics(self.body, -1, localInertiaDiagonal=self.inertia, linearDamping=0.0,
                          angularDamping=0.0, lateralFriction=0.8, restitution=0.0, physicsClientId=c)
+        if self.look is not None:
+            self.look.attach(c, self.body)
 
     def reset(self, position, quat, velocity, body_rates) -> None:
         """Rebuild the world and place the body. A rebuild, not restoreState: Bullet keeps caches that
@@ -81,9 +90,9 @@ class PyBulletWorld:
         p.resetBaseVelocity(self.body, vec_to_ned(velocity).tolist(), vec_to_ned(rates_world).tolist(),
                             physicsClientId=c)
 
-    def set_body(self, mass: float, inertia, body_size) -> None:
-        """The body the next `reset` builds (a new episode's parameter set)."""
-        self.mass, self.inertia, self.body_size = mass, list(inertia), body_size
+    def set_body(self, mass: float, inertia, body_size, look=None) -> None:
+        """The body the next `reset` builds (a new episode's parameter set) and its look."""
+        self.mass, self.inertia, self.body_size, self.look = mass, list(inertia), body_size, look
         self.half_height = body_size[2] / 2
 
     def set_mass(self, mass: float) -> None:
@@ -116,12 +125,20 @@ class PyBulletWorld:
     def touching_ground(self) -> bool:
         return bool(p.getContactPoints(self.body, self.ground, physicsClientId=self.client))
 
+    def show(self, rotors, skew: float = 0.0) -> None:
+        """Bring the look up to date before a frame is drawn: rotor colours from `rotors` (effectiveness,
+        loaded, omega) and the wing at `skew`. Nothing without a look."""
+        if self.look is not None:
+            self.look.show(self.client, self.body, rotors, skew)
+
     def camera_image(self, target_ned, width: int = 480, height: int = 360) -> np.ndarray:
-        """An RGB image from a chase camera looking at `target_ned` (TinyRenderer, works headless)."""
+        """An RGB image from a chase camera looking at `target_ned` from a fixed direction 25 deg above
+        the horizon, at the look's distance (TinyRenderer, works headless)."""
         c = self.client
         target = [target_ned[0], -target_ned[1], -target_ned[2]]
-        view = p.computeViewMatrixFromYawPitchRoll(target, 3.0, 45.0, -25.0, 0.0, 2, physicsClientId=c)
-        proj = p.computeProjectionMatrixFOV(60.0, width / height, 0.05, 100.0, physicsClientId=c)
+        distance = 3.0 if self.look is None else self.look.camera_distance
+        view = p.computeViewMatrixFromYawPitchRoll(target, distance, 45.0, -25.0, 0.0, 2, physicsClientId=c)
+        proj = p.computeProjectionMatrixFOV(60.0, width / height, 0.05, 2000.0, physicsClientId=c)
         _, _, rgba, _, _ = p.getCameraImage(width, height, view, proj, renderer=p.ER_TINY_RENDERER,
                                             physicsClientId=c)
         return np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[:, :, :3]

@@ -42,6 +42,7 @@ class QuadPlaneAutopilotEnv(gym.Env):
         self.plane = QuadPlaneEnv(**kwargs)
         self.params, self.agent_hz, self.task = self.plane.params, self.plane.agent_hz, self.plane.task
         self.render_mode = self.plane.render_mode
+        self.metadata = self.plane.metadata     # render_fps: the agent rate, as QuadPlane-v0's
         self.autopilot = QuadPlaneAutopilot(self.params, self.agent_hz, self.task)
         self.action_space = spaces.Box(0.0, MAX_AIRSPEED_ACTION, (1,), np.float32)
         self.observation_space = spaces.Dict({**self.plane.observation_space.spaces,
