@@ -10,7 +10,7 @@ import pybullet as p
 import pytest
 
 import ftcgym  # noqa: F401  (registers the envs)
-from ftcgym.envs.flight_env import check_display
+from ftcgym.envs.flight_env import FaultAfterEndWarning, check_display
 
 Q, P, AUTOPILOT = "ftcgym/Quadrotor-v0", "ftcgym/QuadPlane-v0", "ftcgym/QuadPlaneAutopilot-v0"
 
@@ -137,13 +137,20 @@ def test_a_sensor_fault_is_inactive_once_its_duration_has_ended():
     (Q, {"vehical": "bebop2"},
      "gym.make keyword: unknown ['vehical'] (did you mean 'vehicle'?); accepted: ['agent_hz'"),
     (AUTOPILOT, {"wnd": {}}, "gym.make keyword: unknown ['wnd'] (did you mean 'wind'?)"),
-    (Q, {"faults": [{"kind": "loe", "target": 0, "time": 40}]},
-     "faults[0].time: 40.0 s is not before the episode's end (max_episode_seconds = 30)"),
-    (Q, {"faults": "random:rotor_loss", "max_episode_seconds": 3}, "faults[0].time: (2.0, 5.0) s is not before"),
 ])
 def test_other_inputs_fail_at_make_naming_the_field(env_id, kwargs, message):
     with pytest.raises(ValueError, match=re.escape(message)):
         gym.make(env_id, **kwargs)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"faults": [{"kind": "loe", "target": 0, "time": 40}]},
+     "faults[0].time: 40.0 s is not before the episode's end (max_episode_seconds = 30); the fault may not act"),
+    ({"faults": "random:rotor_loss", "max_episode_seconds": 3}, "faults[0].time: (2.0, 5.0) s is not before"),
+])
+def test_a_fault_that_may_begin_after_the_episode_is_warned_about(kwargs, message):
+    with pytest.warns(FaultAfterEndWarning, match=re.escape(message)):
+        gym.make(Q, **kwargs).close()
 
 
 def test_bad_reset_options_name_the_option():

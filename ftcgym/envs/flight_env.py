@@ -6,6 +6,7 @@ import math
 import os
 import socket
 import sys
+import warnings
 
 import gymnasium as gym
 import numpy as np
@@ -18,6 +19,10 @@ from .world import PyBulletWorld
 
 RENDER_SIZE = (480, 360)     # pixels, width x height of an rgb_array frame
 MAX_RENDER_SIDE = 4096
+
+
+class FaultAfterEndWarning(UserWarning):
+    """A fault's onset is at or after the episode's end: it may never act."""
 
 
 class FlightEnv(gym.Env):
@@ -87,13 +92,14 @@ class FlightEnv(gym.Env):
         return task
 
     def _check_faults(self, params, specs) -> None:
-        """Every fault must begin before the episode ends, and the payloads (a drop is negative) must keep the
-        mass above zero at every time."""
+        """The payloads (a drop is negative) must keep the mass above zero at every time. A fault that may begin
+        at or after the episode's end is legal (a run cut short on purpose) but warned about: it would not act."""
         for index, spec in enumerate(specs):
             latest = max(spec.time) if isinstance(spec.time, tuple) else spec.time
             if latest >= self.max_episode_seconds:
-                raise ValueError(f"faults[{index}].time: {spec.time!r} s is not before the episode's end "
-                                 f"(max_episode_seconds = {self.max_episode_seconds:g}); the fault would never act")
+                warnings.warn(f"faults[{index}].time: {spec.time!r} s is not before the episode's end "
+                              f"(max_episode_seconds = {self.max_episode_seconds:g}); the fault may not act",
+                              FaultAfterEndWarning, stacklevel=4)
         lightest = params.mass + sum(min(s.magnitude, 0.0) for s in specs if s.kind == "payload")
         if lightest <= 0.0:
             raise ValueError(f"faults: the payloads take the mass to {lightest:g} kg (vehicle {params.mass:g} kg); "
