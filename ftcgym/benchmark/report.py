@@ -386,7 +386,7 @@ def _event_column_title(episode: dict) -> str:
         parts.append(f"recovered {episode['recovery_time'] - onset:+.2f} s")
     else:
         parts.append("not recovered")
-    return f"{episode['policy']}: " + ", ".join(parts)
+    return f"{episode['policy']}\n" + ", ".join(parts)
 
 
 def _of_scenario(episodes: list[dict], name: str) -> list[dict]:
