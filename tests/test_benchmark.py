@@ -133,7 +133,7 @@ def test_summary_of_fault_free_episodes_without_a_detector():
     assert all(summary[0][field] is None for field in DESIGN_SUMMARY_FIELDS[3:10])
 
 
-def test_latency_histograms_take_detected_and_recovered_fault_episodes(tmp_path):
+def test_latency_plot_takes_detected_and_recovered_fault_episodes(tmp_path):
     rows = [episode(policy="a", fault_onset=2.0, detection_delay=0.05, recovery_time=2.9),
             episode(policy="a", fault_onset=3.0, detection_delay=0.07, recovery_time=None),
             episode(policy="a", fault_onset=4.0, detection_delay=None, recovery_time=None),
@@ -261,10 +261,13 @@ def test_bench_cli_end_to_end(tmp_path, capsys):
     with (tmp_path / "episodes.csv").open() as file:
         assert len(list(csv.DictReader(file))) == 1
     assert (tmp_path / "quad-hover.png").stat().st_size > 0
-    assert "quad-hover.png" in (tmp_path / "report.md").read_text()
+    assert (tmp_path / "quad-hover.pdf").read_bytes()[:4] == b"%PDF"   # the vector copy beside the PNG
+    report = (tmp_path / "report.md").read_text()
+    assert "quad-hover.png" in report and "PDF" in report
     assert "quad-hover" in capsys.readouterr().out
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([   # this run's files only, published whole
-        ".ftcgym.lock", ".ftcgym-files.json", "results.json", "episodes.csv", "report.md", "quad-hover.png"])
+        ".ftcgym.lock", ".ftcgym-files.json", "results.json", "episodes.csv", "report.md", "quad-hover.png",
+        "quad-hover.pdf"])
 
 
 def test_a_pitot_blockage_is_isolated_by_naming_the_pitot():

@@ -143,8 +143,8 @@ def test_a_sweep_replaces_the_folders_previous_run_and_owns_its_journal(tmp_path
     config = parse_config(SMALL)
     rows = run_sweep(config, tmp_path, episode=fake_episode, progress=False)
     write_sweep_report(tmp_path, config, rows, {"command": "ftcgym sweep", "backend": "local", "wall_time_s": 1.0})
-    report = ["detection_delay.png", "detections.png", "episodes.jsonl", "report.md", "results.json", "sets.csv",
-              "sweep_config.json"]
+    report = ["detection_delay.png", "detection_delay.pdf", "detections.png", "detections.pdf", "episodes.jsonl",
+              "report.md", "results.json", "sets.csv", "sweep_config.json"]
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([".ftcgym.lock", ".ftcgym-files.json", *report])
     assert json.loads((tmp_path / ".ftcgym-files.json").read_text()) == sorted([*report, "failures.jsonl"])
     with OutputFolder(tmp_path), pytest.raises(ValueError, match="already holds"):   # nested in one process

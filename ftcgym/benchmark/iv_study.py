@@ -2,6 +2,8 @@
 
     python -m ftcgym.benchmark.iv_study --seeds 100-109 --workers 1 --plot /tmp/iv_change.png
 
+(the plot also writes /tmp/iv_change.pdf beside the PNG.)
+
 Flies the square task (with and without 90 deg heading changes) in light Dryden turbulence and a
 (1, -1, 0) m/s mean wind, mass 0.5 -> 1 kg between 40 and 42 s, with the nominal controller, and
 prints each seed's alarm time. The alarm rule (a CUSUM of the IV increments) and the prefilter were
@@ -93,47 +95,53 @@ def acceptance(seeds, workers: int = 2) -> list[dict]:
 
 
 def plot(seed: int, path: str, heading_changes: bool = False) -> str:
-    """IV costs J1, J2, the IV estimate c_hat / c_0 and its CUSUM beside the low-passed 6-DOF residual (004 4.1)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    """IV costs J1, J2, the IV estimate c_hat / c_0 and its CUSUM beside the low-passed 6-DOF residual (004 4.1),
+    in the look of `style`: a PNG at `path` and a PDF beside it."""
+    from matplotlib.figure import Figure  # a bare Figure renders with Agg: no pyplot, no global backend
+
+    from ftcgym.benchmark import style
 
     row = fly(seed, heading_changes, record=True)
     t, J, res, ratio = row["trace"][:, 0], row["trace"][:, 1:3], row["trace"][:, 3:7], row["trace"][:, 7]
     cusum = row["trace"][:, 8]
-    fig, (ax_acc, ax_rate, ax_iv, ax_c, ax_g) = plt.subplots(5, 1, figsize=(10, 12), sharex=True)
-    ax_acc.plot(t, res[:, 2], label="$a_x - a_{x,s}$")
-    ax_acc.plot(t, res[:, 3], label="$a_y - a_{y,s}$")
-    ax_acc.set_ylabel("m/s$^2$")
-    ax_acc.set_title("6-DOF simulation-model residual (004 Sec. 4.1), 0.5 Hz low-pass")
-    ax_rate.plot(t, res[:, 0], label="$p - p_s$")
-    ax_rate.plot(t, res[:, 1], label="$q - q_s$")
-    ax_rate.set_ylabel("rad/s")
-    ax_iv.semilogy(t, np.maximum(J[:, 0], 1e-10), label="$J_{IV1}$ (x)")
-    ax_iv.semilogy(t, np.maximum(J[:, 1], 1e-10), label="$J_{IV2}$ (y)")
-    ax_iv.set_ylim(1e-9, None)
-    ax_iv.set_title("IV cost (004 eq. 30, lam 0.999, N_w 500) of the sensor-to-sensor residuals (29)")
-    ax_c.plot(t, ratio, color="C2", label=r"$\hat c / c_0$ (IV estimate of $\lambda_1/m$)")
-    ax_c.axhline(1.0, color="0.5", lw=1)
     defaults = IvChangeSettings()
-    ax_c.axhline(defaults.cusum_ratio, color="k", ls=":", lw=1, label="CUSUM target $c_1 / c_0$")
-    ax_c.set_ylim(-0.2, 1.6)
-    ax_c.set_title("IV estimate of c (forgetting factor 0.999)")
-    ax_g.plot(t, cusum, color="C3", label="CUSUM $g$ of the IV increments (the detector's test statistic)")
-    ax_g.axhline(defaults.cusum_threshold, color="k", ls="--", lw=1, label="alarm threshold")
-    if row["alarm_time"] is not None:
-        for ax in (ax_c, ax_g):
-            ax.axvline(row["alarm_time"], color="r", lw=1, label=f"alarm {row['alarm_time']:.2f} s")
-    ax_g.set_ylabel("s")
-    ax_g.set_xlabel("time (s)")
-    for ax in (ax_acc, ax_rate, ax_iv, ax_c, ax_g):
-        ax.axvspan(ONSET, ONSET + RAMP, color="0.85", zorder=0)
-        ax.legend(loc="upper left", fontsize=8)
-    fig.suptitle(f"mass 0.5 -> 1 kg at 40-42 s (shaded), light turbulence, seed {seed}"
-                 + (", heading changes" if heading_changes else ""))
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    with style.paper():
+        figure = Figure(figsize=style.size(2, 7.0), layout="constrained")
+        ax_acc, ax_rate, ax_iv, ax_c, ax_g = figure.subplots(5, 1, sharex=True)
+        blue, orange = style.COMPONENT_COLORS[:2]
+        ax_acc.plot(t, res[:, 2], color=blue, label="$a_x - a_{x,s}$")
+        ax_acc.plot(t, res[:, 3], color=orange, label="$a_y - a_{y,s}$")
+        ax_acc.set_ylabel(style.wrap("Acceleration residual (m/s²)"))
+        ax_acc.set_title("6-DOF simulation-model residual (004 Sec. 4.1), 0.5 Hz low-pass")
+        ax_rate.plot(t, res[:, 0], color=blue, label="$p - p_s$")
+        ax_rate.plot(t, res[:, 1], color=orange, label="$q - q_s$")
+        ax_rate.set_ylabel(style.wrap("Rate residual (rad/s)"))
+        ax_iv.semilogy(t, np.maximum(J[:, 0], 1e-10), color=blue, label="$J_{IV1}$ (x)")
+        ax_iv.semilogy(t, np.maximum(J[:, 1], 1e-10), color=orange, label="$J_{IV2}$ (y)")
+        ax_iv.set_ylim(1e-9, None)
+        ax_iv.set_ylabel("IV cost")
+        ax_iv.set_title("IV cost (004 eq. 30, forgetting factor 0.999, window 500) of the residuals (29)")
+        ax_c.plot(t, ratio, color=style.GREEN, label=r"$\hat c / c_0$ (IV estimate of $\lambda_1/m$)")
+        ax_c.axhline(1.0, color=style.GREY, lw=0.8)
+        ax_c.axhline(defaults.cusum_ratio, color=style.BLACK, ls=":", lw=0.8, label="CUSUM target $c_1 / c_0$")
+        ax_c.set_ylim(-0.2, 1.6)
+        ax_c.set_ylabel(style.wrap("Drag per mass / nominal"))
+        ax_c.set_title("IV estimate of c (forgetting factor 0.999)")
+        ax_g.plot(t, cusum, color=style.VERMILLION, label="CUSUM $g$ of the IV increments (the test statistic)")
+        ax_g.axhline(defaults.cusum_threshold, color=style.GREY, ls="--", lw=0.8, label="alarm threshold")
+        if row["alarm_time"] is not None:
+            for ax in (ax_c, ax_g):
+                ax.axvline(row["alarm_time"], color=style.ALARM_COLOR, ls="--", lw=0.8,
+                           label=f"alarm {row['alarm_time']:.2f} s")
+        ax_g.set_ylabel(style.wrap(style.label("cusum", "iv_change")))
+        ax_g.set_xlabel(style.label("time"))
+        for ax in (ax_acc, ax_rate, ax_iv, ax_c, ax_g):
+            ax.axvspan(ONSET, ONSET + RAMP, color="0.88", lw=0, zorder=0)
+            ax.legend(loc="upper left")
+        figure.align_ylabels()
+        figure.suptitle(f"Mass 0.5 -> 1 kg at 40-42 s (shaded), light turbulence, seed {seed}"
+                        + (", heading changes" if heading_changes else ""))
+        style.save(figure, path)
     return path
 
 

@@ -24,7 +24,9 @@ from ftcgym.fdd import published_detector, wrap_with_detector
 from ftcgym.fdd.metrics import detection_delay, is_false_alarm
 
 TRAJECTORY_MAX_HZ = 50.0
-EVENT_BEFORE_S, EVENT_AFTER_S = 0.3, 0.7  # full-rate window kept around a fault onset, for plots
+# Full-rate window kept around a fault onset, for the event plot: long enough after it to show a recovery (the
+# 2 s recovered window starts ~0.6-1.5 s after a rotor loss) or a crash (~1 s after it, fault-unaware).
+EVENT_BEFORE_S, EVENT_AFTER_S = 0.5, 3.0
 
 
 def episode_seed(seed: int, index: int) -> int:
@@ -225,7 +227,8 @@ def trajectory(log: EpisodeLog, max_hz: float = TRAJECTORY_MAX_HZ) -> dict[str, 
 
 def event_window(log: EpisodeLog, before: float = EVENT_BEFORE_S, after: float = EVENT_AFTER_S) -> dict | None:
     """Full-rate time history around the fault onset (as 000 Figs. 8-9): rotor speeds, attitude and the
-    scored detector's outputs; None without a fault."""
+    scored detector's outputs, and on the quad-plane the true airspeed and the one the autopilot used; None
+    without a fault."""
     onset = (log.fault or {}).get("onset_time")
     if onset is None:
         return None
@@ -235,6 +238,9 @@ def event_window(log: EpisodeLog, before: float = EVENT_BEFORE_S, after: float =
               "altitude": -log.position[keep, 2], "onset": onset, "alarm_time": log.alarm_time,
               "detector": log.detector}
     window["outputs"] = {name: values[keep] for name, values in log.detector_outputs.items()}
+    for name in ("airspeed", "airspeed_used"):
+        if getattr(log, name) is not None:
+            window[name] = getattr(log, name)[keep]
     return window
 
 

@@ -1,6 +1,6 @@
 """A sweep's outputs: per-set summary (results.json, sets.csv, report.md) and the plots of 000 Fig. 11:
 detection-delay box plots per parameter set (detection_delay.png), missed detections and false alarms per
-set (detections.png).
+set (detections.png); each PNG with a PDF beside it, in the look of `style`.
 """
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure  # a bare Figure renders with Agg: no pyplot, no global backend
 
+from ftcgym.benchmark import style
 from ftcgym.benchmark.journal import CONFIG_FILE, FAILURES_FILE, ROWS_FILE
 from ftcgym.benchmark.outputs import OutputFolder
 
@@ -62,7 +63,8 @@ def write_sweep_files(place, config, rows: list[dict], run: dict) -> str:
     place("report.md").write_text(
         f"# Sweep {config.name}\n\n{config.description}\n\nCommand: `{run['command']}` ({run['backend']} backend, "
         f"{run['wall_time_s']:.0f} s)\n\n```\n{table}\n```\n\n![detection delay](detection_delay.png)\n\n"
-        f"![missed detections and false alarms](detections.png)\n")
+        f"![missed detections and false alarms](detections.png)\n\nEach PNG has a "
+        f"{style.VECTOR_FORMAT.upper()} beside it (same name, .{style.VECTOR_FORMAT}) for papers.\n")
     return table
 
 
@@ -79,35 +81,45 @@ def plot_delays(path: Path, rows: list[dict], names: list[str], title: str) -> P
     """000 Fig. 11: one box of detection delays (ms) per set; outliers beyond 1.5 IQR as red crosses."""
     delays = [[1000.0 * row["detection_delay"] for row in rows
                if row["parameter_set"] == name and row["detection_delay"] is not None] for name in names]
-    figure = Figure(figsize=(max(6.0, 0.45 * len(names) + 2.0), 4.5), layout="constrained")
-    axes = figure.add_subplot()
-    axes.boxplot([d if d else [np.nan] for d in delays], tick_labels=names, whis=1.5,
-                 flierprops={"marker": "+", "markeredgecolor": "red"})
-    axes.set_ylabel("detection delay t_d (ms)")
-    axes.set_title(f"{title}: detection delay per parameter set")
-    for label in axes.get_xticklabels():
-        label.set(rotation=60, ha="right")
-    axes.grid(axis="y", alpha=0.3)
-    figure.savefig(path, dpi=110)
+    with style.paper():
+        figure = Figure(figsize=style.size(1 if len(names) <= 6 else 2, 2.8), layout="constrained")
+        axes = figure.add_subplot()
+        axes.boxplot([d if d else [np.nan] for d in delays], tick_labels=names, whis=1.5,
+                     boxprops={"linewidth": 0.8}, medianprops={"color": style.BLUE, "linewidth": 1.2},
+                     flierprops={"marker": "+", "markeredgecolor": style.VERMILLION, "markersize": 4})
+        axes.set_ylabel(style.label("detection_delay"))
+        axes.set_title(f"{title}: detection delay per parameter set")
+        for label in axes.get_xticklabels():
+            label.set(rotation=60, ha="right")
+        axes.grid(axis="x", visible=False)
+        style.save(figure, path)
     return path
 
 
 def plot_detections(path: Path, summary: list[dict], title: str) -> Path:
-    """Missed detections and false alarms (flights) per set, side by side."""
+    """Missed detections and false alarms (flights) per set, side by side; a PNG at `path`, a PDF beside it."""
+    with style.paper():
+        style.save(detections_figure(summary, title), path)
+    return path
+
+
+def detections_figure(summary: list[dict], title: str) -> Figure:
+    """The figure of `plot_detections`: whole-number ticks on its count axis."""
     x = np.arange(len(summary))
-    figure = Figure(figsize=(max(6.0, 0.45 * len(summary) + 2.0), 4.0), layout="constrained")
+    figure = Figure(figsize=style.size(1 if len(summary) <= 6 else 2, 2.6), layout="constrained")
     axes = figure.add_subplot()
-    bars = ((-0.2, "missed", "missed detections"), (0.2, "false_alarms", "flights with a false alarm"))
-    for offset, key, label in bars:
-        bars = axes.bar(x + offset, [row[key] for row in summary], 0.4, label=label)
-        axes.bar_label(bars, fontsize=7)  # a zero is a result too: label it, as an empty axis says nothing
+    bars = ((-0.2, "missed", "missed detections", style.VERMILLION),
+            (0.2, "false_alarms", "flights with a false alarm", style.SKY_BLUE))
+    for offset, key, label, color in bars:
+        drawn = axes.bar(x + offset, [row[key] for row in summary], 0.4, label=label, color=color)
+        axes.bar_label(drawn, fontsize=6)  # a zero is a result too: label it, as an empty axis says nothing
     axes.set_xticks(x, [row["parameter_set"] for row in summary], rotation=60, ha="right")
-    axes.set_ylabel("flights")
+    axes.set_ylabel(style.label("flights"))
     faults, flights = summary[0]["fault_flights"], summary[0]["flights"]
     axes.set_title(f"{title}: {faults} fault flights, {flights - faults} fault-free, per set")
-    axes.yaxis.get_major_locator().set_params(integer=True)
+    style.integer_ticks(axes.yaxis)
     most = max([row["missed"] for row in summary] + [row["false_alarms"] for row in summary])
     axes.set_ylim(0, max(most, 1) + 0.5)  # zero counts stay on the axis instead of a symmetric empty range
-    axes.legend()
-    figure.savefig(path, dpi=110)
-    return path
+    axes.grid(axis="x", visible=False)
+    axes.legend(loc="upper right")
+    return figure
