@@ -2,6 +2,7 @@
 is accepted; a failed or dropped env holds no PyBullet client; a closed env says so (issue 35's reproducers)."""
 import contextlib
 import gc
+import os
 import re
 
 import gymnasium as gym
@@ -186,8 +187,13 @@ def test_step_and_reset_after_close_say_the_env_is_closed(env_id):
         env.reset(seed=0)
 
 
+def rss_mib() -> float:
+    with open("/proc/self/statm") as statm:
+        return int(statm.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+
 def test_failed_makes_hold_no_client_and_dropped_envs_release_theirs():
-    before = connected_clients()
+    before, rss_before = connected_clients(), rss_mib()
     bad = [{"faults": [{"kind": "loe", "target": 9}]}, {"sensors": {"gyro_noise": -1}},
            {"vehicle_overrides": {"omega_max": -1.0}}]
     for i in range(300):
@@ -196,6 +202,7 @@ def test_failed_makes_hold_no_client_and_dropped_envs_release_theirs():
     with contextlib.suppress(ValueError):
         gym.make(AUTOPILOT, task="square")
     assert connected_clients() == before
+    assert rss_mib() - rss_before < 100.0          # each leaked client held ~34 MiB before
     envs = [gym.make(Q) for _ in range(50)]
     assert connected_clients() == before + 50
     del envs
