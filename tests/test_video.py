@@ -55,26 +55,26 @@ def test_the_overlay_tells_each_event_from_its_time_on():
     before = overlay_lines(2.0, EVENTS, altitude=5.0, airspeed=0.4)
     assert _text(before) == ["quad-rotor-loss-hover  ftc-spin  seed 0", "t =   2.000 s   real time",
                              "altitude   5.00 m   airspeed  0.40 m/s",
-                             "fault      rotor_loss of rotor 3 at 2.809 s",
+                             "fault      Rotor r4 lost at 2.809 s",
                              "alarm      loe_kalman: none", "recovered  not yet"]
     assert [color for _, color in before[3:]] == [DIM, DIM, DIM]
     after_alarm = overlay_lines(3.0, EVENTS, slowmo=4)
     assert after_alarm[1][0] == "t =   3.000 s   4x slow motion"
-    assert after_alarm[2] == ("fault      rotor_loss of rotor 3 at 2.809 s", RED)
-    assert after_alarm[3] == ("alarm      loe_kalman at 2.854 s (+0.045 s), isolated 3", ORANGE)
+    assert after_alarm[2] == ("fault      Rotor r4 lost at 2.809 s", RED)
+    assert after_alarm[3] == ("alarm      loe_kalman at 2.854 s (+0.045 s), isolated r4", ORANGE)
     assert after_alarm[4] == ("recovered  not yet", DIM)
     assert overlay_lines(4.0, EVENTS)[-1] == ("recovered  at 3.682 s (+0.873 s)", GREEN)
 
 
 def test_the_overlay_of_a_crash_a_flight_without_fault_and_without_detector():
     crash = FlightEvents("s", "nominal", 1, "loe", [0, 2], 5.0, None, None, None, None, True, 6.5)
-    assert _text(overlay_lines(5.5, crash))[2:] == ["fault      loe of rotors 0+2 at 5.000 s", "recovered  not yet"]
-    assert _text(overlay_lines(6.5, crash))[2:] == ["fault      loe of rotors 0+2 at 5.000 s", "recovered  no",
-                                                    "CRASHED    at 6.500 s"]
+    fault = "fault      Loss of effectiveness of rotor r1, r3 at 5.000 s"
+    assert _text(overlay_lines(5.5, crash))[2:] == [fault, "recovered  not yet"]
+    assert _text(overlay_lines(6.5, crash))[2:] == [fault, "recovered  no", "CRASHED    at 6.500 s"]
     calm = FlightEvents("qp-mission", "pitot-only", 2, end_time=240.0)
     assert _text(overlay_lines(1.0, calm))[2:] == ["fault      none"]
     pitot = FlightEvents("qp", "airspeed-switch", 0, "pitot_blockage", "zero", 45.0, "airdata_ekf", 45.09, "pitot")
-    assert overlay_lines(46.0, pitot)[2][0] == "fault      pitot_blockage (zero) at 45.000 s"
+    assert overlay_lines(46.0, pitot)[2][0] == "fault      Pitot blockage (reads zero) at 45.000 s"
     assert speed_label(0.25) == "4x fast forward"
 
 
@@ -172,7 +172,7 @@ def test_a_short_video_end_to_end(tmp_path, capsys):
     printed = capsys.readouterr()
     assert status == 0 and printed.err == ""
     assert "14 frames at 10 fps, 1.40 s of video of t = 0.30-1.00 s" in printed.out
-    assert "fault rotor_loss of rotor 1 at 0.500 s" in printed.out
+    assert "fault Rotor r2 lost at 0.500 s" in printed.out
     reader = imageio.get_reader(str(out))
     frames = [frame for frame in reader]
     assert reader.get_meta_data()["fps"] == 10 and len(frames) == 14 and frames[0].shape == (64, 96, 3)

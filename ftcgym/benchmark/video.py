@@ -27,8 +27,8 @@ import numpy as np
 from ftcgym.agents import make_policy
 from ftcgym.benchmark.runner import make_env, roll_out, score_episode
 from ftcgym.benchmark.scenarios import Scenario, get_scenario
+from ftcgym.benchmark.style import ROTORS, fault_title
 from ftcgym.fdd import published_detector
-from ftcgym.models.faults import ROTOR_KINDS
 
 BEFORE_S, AFTER_S = 1.0, 3.0     # default window around the fault onset
 FPS = 30
@@ -139,19 +139,14 @@ def overlay_lines(t: float, events: FlightEvents, slowmo: float = 1.0, altitude:
 
 
 def fault_text(kind: str, target) -> str:
-    """'rotor_loss of rotor 3', 'loe of rotors 0+2', 'pitot_blockage (zero)'."""
-    if target is None:
-        return str(kind)
-    if kind in ROTOR_KINDS:
-        plural = "s" if isinstance(target, (list, tuple)) and len(target) > 1 else ""
-        return f"{kind} of rotor{plural} {_target(target)}"
-    return f"{kind} ({_target(target)})"
+    """The fault in the figures' words: 'Rotor r4 lost', 'Pitot blockage (reads zero)' (`style.fault_title`)."""
+    return fault_title(kind, target)
 
 
 def _target(target) -> str:
-    if isinstance(target, (list, tuple)):
-        return "+".join(str(v) for v in target)
-    return str(target)
+    """A detector's isolated target in the figures' words: rotor index 3 reads 'r4'."""
+    targets = target if isinstance(target, (list, tuple)) else [target]
+    return "+".join(ROTORS[t] if isinstance(t, int) and 0 <= t < len(ROTORS) else str(t) for t in targets)
 
 
 LEGEND = (("rotors:", WHITE), ("spinning", (38, 166, 64)), ("weak", (255, 140, 0)), ("lost", (230, 20, 20)),
