@@ -17,6 +17,17 @@ def package_version() -> str:
         return "unknown"
 
 
+def add_env_and_detector_arguments(parser, use: str) -> None:
+    """--env-kwargs, --detector and --detector-kwargs of a command that flies one scenario's env; `use`: what the
+    detector is for ('score', 'show')."""
+    parser.add_argument("--env-kwargs", type=json_object, default={}, metavar="JSON",
+                        help="JSON object merged (top-level keys) into the scenario's gym.make kwargs")
+    parser.add_argument("--detector", metavar="NAME", type=detector_name,
+                        help=f"detector to wrap the env with and {use} (default: the scenario's), or MODULE:ATTR")
+    parser.add_argument("--detector-kwargs", type=json_object, default={}, metavar="JSON",
+                        help="JSON object of detector arguments")
+
+
 def json_object(text: str) -> dict:
     """A JSON object (keyword arguments)."""
     try:

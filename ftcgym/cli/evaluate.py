@@ -4,7 +4,7 @@ from __future__ import annotations
 import time
 import zipfile
 
-from .common import detector_name, json_object, non_negative_int, positive_int, scenario
+from .common import add_env_and_detector_arguments, non_negative_int, positive_int, scenario
 
 
 def add_parser(subparsers) -> None:
@@ -20,12 +20,7 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--episodes", type=positive_int, metavar="N",
                         help="episodes (default: the scenario's own)")
     parser.add_argument("--seed", type=non_negative_int, default=0, metavar="S", help="base seed (default: 0)")
-    parser.add_argument("--env-kwargs", type=json_object, default={}, metavar="JSON",
-                        help="JSON object merged (top-level keys) into the scenario's gym.make kwargs")
-    parser.add_argument("--detector", metavar="NAME", type=detector_name,
-                        help="detector to wrap the env with and score (default: the scenario's), or MODULE:ATTR")
-    parser.add_argument("--detector-kwargs", type=json_object, default={}, metavar="JSON",
-                        help="JSON object of detector arguments")
+    add_env_and_detector_arguments(parser, "score")
     parser.set_defaults(run=run)
 
 

@@ -6,7 +6,7 @@ import os
 import sys
 import time
 
-from .common import detector_name, json_object, non_negative_int, policy_name, positive_int, scenario
+from .common import add_env_and_detector_arguments, non_negative_int, policy_name, positive_int, scenario
 
 SUFFIXES = (".mp4", ".mkv", ".mov")
 
@@ -35,12 +35,7 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--fps", type=positive_int, default=30, metavar="N", help="video frame rate (default: 30)")
     parser.add_argument("--size", type=frame_size, default=(640, 480), metavar="WxH",
                         help="frame size in pixels, even numbers (default: 640x480)")
-    parser.add_argument("--env-kwargs", type=json_object, default={}, metavar="JSON",
-                        help="JSON object merged (top-level keys) into the scenario's gym.make kwargs")
-    parser.add_argument("--detector", metavar="NAME", type=detector_name,
-                        help="detector to wrap the env with and show (default: the scenario's), or MODULE:ATTR")
-    parser.add_argument("--detector-kwargs", type=json_object, default={}, metavar="JSON",
-                        help="JSON object of detector arguments")
+    add_env_and_detector_arguments(parser, "show")
     parser.set_defaults(run=run)
 
 
