@@ -228,16 +228,16 @@ class AugmentedEkfDetector:
         dt = self.dt
         f, F = self.dynamics(self.x, Omega, (Omega - self._Omega) / dt)   # F at x(k|k), eq. (9)
         Fdt = F * dt
-        self.x = self.x + dt * f + (0.5 * dt) * (Fdt @ f)    # eq. (6)
+        self.x = self.x + dt * f + (0.5 * dt) * Fdt.dot(f)   # eq. (6)
         self.x[PSI] = _wrap(self.x[PSI])
-        Phi = self._I + Fdt + 0.5 * (Fdt @ Fdt)              # eq. (8), to second order
+        Phi = self._I + Fdt + 0.5 * Fdt.dot(Fdt)             # eq. (8), to second order
         self.P = kalman.predict(self.P, self.Q, Phi)         # eq. (7)
 
     def correct(self, y: np.ndarray) -> None:
         """Eq. (13)-(18) for y = H x + v: [eta, gyro] or [eta, gyro, p, v] (H constant, so eq. 15 is exact)."""
         m = y.size
         H, R = self.H_full[:m], self.R_full[:m, :m]
-        gamma = y - H @ self.x                               # eq. (17)
+        gamma = y - H.dot(self.x)                            # eq. (17)
         gamma[2] = _wrap(gamma[2])                           # yaw innovation across +-pi
         # eq. (13)-(16), and eq. (18): the Joseph form
         self.x, self.P, S, _ = kalman.update(self.x, self.P, gamma, H, R)
@@ -268,19 +268,19 @@ class AugmentedEkfDetector:
         """
         mass = self.mass
         R = rotation_from_euler(phi, theta, psi)
-        a_b = v @ R                                           # R^T v, body airspeed (no wind is known)
-        rotor_drag = self.k_d * float(k @ Omega)
+        a_b = v.dot(R)                                        # R^T v, body airspeed (no wind is known)
+        rotor_drag = self.k_d * float(k.dot(Omega))
         c = -np.array((self.d_body[0] + rotor_drag, self.d_body[1] + rotor_drag, self.d_body[2]))
         F_b = c * a_b
-        F_b[2] -= self.c_T * float(k @ Omega2)
-        RF = R @ F_b
-        RCRt = (R * c) @ R.T
+        F_b[2] -= self.c_T * float(k.dot(Omega2))
+        RF = R.dot(F_b)
+        RCRt = (R * c).dot(R.T)
         # d(R u)/d eta_j = n_j x (R u) with n_phi = R e1, n_theta = Rz e2, n_psi = e3 (ZYX), so the eta
         # columns are n_j x RF + RCR^T (v x n_j) = (RCR^T [v]x - [RF]x) n_j.
         N = np.array(((R[0, 0], -math.sin(psi), 0.0), (R[1, 0], math.cos(psi), 0.0), (R[2, 0], 0.0, 1.0)))
-        dv_deta = (RCRt @ skew_matrix(v) - skew_matrix(RF)) @ N / mass
-        dFb_dl = np.vstack((self.k_d * a_b[0] * Omega, self.k_d * a_b[1] * Omega, self.c_T * Omega2))
-        return RF / mass + self._gravity, RCRt / mass, dv_deta, R @ dFb_dl / mass
+        dv_deta = (RCRt.dot(skew_matrix(v)) - skew_matrix(RF)).dot(N) / mass
+        dFb_dl = np.array((self.k_d * a_b[0] * Omega, self.k_d * a_b[1] * Omega, self.c_T * Omega2))
+        return RF / mass + self._gravity, RCRt / mass, dv_deta, R.dot(dFb_dl) / mass
 
     def _rotational(self, p, q, r, kOmega2, Omega, Omega_dot):
         """Eq. (25)-(27) as Euler's equation J omega_dot = M - omega x J omega, and d(omega_dot)/d omega.
@@ -290,11 +290,11 @@ class AugmentedEkfDetector:
         """
         Jx, Jy, Jz = self.J_tuple
         dx, dy, dz = self.d_rot_tuple
-        h = -self.I_p * float(self.s @ Omega)                 # propellers' angular momentum along body z
-        M = self.A @ kOmega2
+        h = -self.I_p * float(self.s.dot(Omega))              # propellers' angular momentum along body z
+        M = self.A.dot(kOmega2)
         M[0] += -dx * p - q * h - q * r * (Jz - Jy)
         M[1] += -dy * q + p * h - p * r * (Jx - Jz)
-        M[2] += -dz * r + self.I_p * float(self.s @ Omega_dot) - p * q * (Jy - Jx)
+        M[2] += -dz * r + self.I_p * float(self.s.dot(Omega_dot)) - p * q * (Jy - Jx)
         dw_dw = np.array(((-dx / Jx, (-h - r * (Jz - Jy)) / Jx, -q * (Jz - Jy) / Jx),
                           ((h - r * (Jx - Jz)) / Jy, -dy / Jy, -p * (Jx - Jz) / Jy),
                           (-q * (Jy - Jx) / Jz, -p * (Jy - Jx) / Jz, -dz / Jz)))
@@ -311,7 +311,7 @@ class AugmentedEkfDetector:
         m = self.gamma.size                                    # channels measured now (position: 100 Hz)
         lam = self._forget                                     # the window decays in time, not in samples
         self._acc *= lam
-        self._acc[:m] += self.gamma / np.sqrt(np.diag(self.S))
+        self._acc[:m] += self.gamma / np.sqrt(self.S.diagonal())
         self._acc_w *= lam * lam
         self._acc_w[:m] += 1.0
         self.z = self._acc / np.sqrt(self._acc_w)
@@ -340,10 +340,13 @@ def _finite(readings: dict, keys, command) -> dict:
     if missing:
         raise ValueError(f"readings: missing {missing} (the aekf detector needs {list(keys)})")
     z = {key: np.asarray(readings[key], dtype=np.float64) for key in keys}
-    if not np.isfinite(np.concatenate(list(z.values()))).all():    # one check; find the key only on failure
-        bad = next(key for key in keys if not np.isfinite(z[key]).all())
-        raise ValueError(f"readings[{bad!r}]: must be finite (no NaN or inf), got {z[bad].tolist()}")
-    if command is not None and not np.isfinite(np.asarray(command, dtype=np.float64)).all():
+    # one check (a sum is finite only if every term is); the key is looked for only on failure
+    if not math.isfinite(sum(np.concatenate(list(z.values())).tolist())):
+        bad = next((key for key in keys if not np.isfinite(z[key]).all()), None)
+        if bad is not None:                                   # else only the sum overflowed
+            raise ValueError(f"readings[{bad!r}]: must be finite (no NaN or inf), got {z[bad].tolist()}")
+    if (command is not None and not math.isfinite(sum(np.asarray(command, dtype=np.float64).ravel().tolist()))
+            and not np.isfinite(np.asarray(command, dtype=np.float64)).all()):
         raise ValueError(f"command: must be finite (no NaN or inf), got {np.asarray(command).tolist()}")
     return z
 

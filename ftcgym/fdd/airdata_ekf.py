@@ -69,7 +69,7 @@ import numpy as np
 from scipy import signal
 
 from ..models.constants import GRAVITY
-from ..models.geometry import rotation_matrix, skew_matrix
+from ..models.geometry import cross, rotation_matrix, skew_matrix
 from ..models.pusher import pusher_thrust
 from ..models.quadplane_aero import fuselage_force, wing_flow
 from ..settings import updated
@@ -228,16 +228,35 @@ class ComponentForceModel:
     def hover(self, u, v, omega_h):
         """eq. (15) T_zh = K_zh omega_h^2 (summed over the rotors) and eq. (16)-(17) rotor drag F = K_h (u, v),
         the slope K_h = -k_d sum|omega| growing with RPM (001 App. A, Fig. 17a)."""
-        drag = -self.k_d * float(np.sum(np.abs(omega_h)))
-        return np.array([drag * u, drag * v, -self.k_f * float(np.sum(omega_h * omega_h))])
+        return np.array(self._hover(u, v, omega_h))
+
+    def _hover(self, u, v, omega_h) -> tuple:
+        """`hover` as floats. The sums run left to right from -0.0, as np.sum does below 8 terms, so the
+        floats are np.sum's (pairwise from 8 terms: there np.sum itself)."""
+        omega_h = np.asarray(omega_h, dtype=float).ravel()
+        if omega_h.size < 8:
+            total, squares = -0.0, -0.0
+            for w in omega_h.tolist():
+                total += abs(w)
+                squares += w * w
+        else:
+            total, squares = float(np.sum(np.abs(omega_h))), float(np.sum(omega_h * omega_h))
+        drag = -self.k_d * total
+        return drag * u, drag * v, -self.k_f * squares
 
     def specific_force(self, air_velocity_body, omega_p: float, omega_h, skew: float) -> np.ndarray:
-        """eq. (31)-(33): [a_x, a_y, a_z] = (F_f + F_w + F_h + T_p e_x) / m, m/s^2."""
+        """eq. (31)-(33): [a_x, a_y, a_z] = (F_f + F_w + F_h + T_p e_x) / m, m/s^2.
+
+        Summed per component in floats, in the order of the array sum (F_f + F_w) + F_h, then + T_p on x."""
         vel = tuple(float(x) for x in air_velocity_body)
-        force = (np.array(fuselage_force(self.params, vel)) + np.array(wing_flow(self.params, vel, skew)[0])
-                 + self.hover(vel[0], vel[1], np.asarray(omega_h)))
+        fuselage, wing = fuselage_force(self.params, vel), wing_flow(self.params, vel, skew)[0]
+        hover = self._hover(vel[0], vel[1], omega_h)
+        force = [float(fuselage[i]) + float(wing[i]) + hover[i] for i in range(3)]
         force[0] += pusher_thrust(self.params, omega_p, vel[0])
-        return force / self.mass
+        return np.array(force) / self.mass
+
+
+_GRAVITY_NED = np.array([0.0, 0.0, GRAVITY])
 
 
 def ekf_step(x, P, dt, inputs, z, h, H, Q, R):
@@ -252,15 +271,15 @@ def ekf_step(x, P, dt, inputs, z, h, H, Q, R):
     a, omega, Rot = inputs
     vel = x[:3]
     f = np.zeros(6)
-    f[:3] = -np.cross(omega, vel) + Rot.T @ np.array([0.0, 0.0, GRAVITY]) + a     # eq. (4); eq. (5): wind f = 0
+    f[:3] = -cross(omega, vel) + Rot.T.dot(_GRAVITY_NED) + a      # eq. (4); eq. (5): wind f = 0
     F = np.zeros((6, 6))
     F[:3, :3] = -skew_matrix(omega)
     L = np.zeros((6, 9))
-    L[:3, :3] = np.eye(3)                       # accelerometer noise w_a
+    L[:3, :3] = kalman.eye(3)                   # accelerometer noise w_a
     L[:3, 3:6] = skew_matrix(vel)             # gyro noise: -(w_omega x v) = v x w_omega
-    L[3:, 6:] = np.eye(3)                       # wind random walk w_mu
+    L[3:, 6:] = kalman.eye(3)                   # wind random walk w_mu
     x_pred = x + f * dt                                            # eq. (52), corrected
-    P_pred = kalman.predict(P, L @ Q @ L.T, np.eye(6) + F * dt)    # eq. (53)
+    P_pred = kalman.predict(P, L.dot(Q).dot(L.T), kalman.eye(6) + F * dt)   # eq. (53)
     y = z - h(x_pred)                                              # eq. (54)
     x_new, P_new, S, _ = kalman.update(x_pred, P_pred, y, H(x_pred), R)   # eq. (55)-(58), M = I, Joseph form
     return x_new, P_new, y, S
@@ -431,10 +450,11 @@ class AirdataEkfDetector:
         if self._propulsion is not None:                       # s[19]: filtered like the RPM it stands in for
             keys += ("pusher_current",)
             parts.append(np.array([self._current_reading(readings, "the pusher_rpm speed_from_current")]))
-        for key, part in zip(keys, parts):
-            if not np.all(np.isfinite(part)):
-                raise ValueError(f"airdata_ekf: reading {key!r} is not finite at t = {time}: {part.tolist()}")
         sample = np.concatenate(parts)
+        if not math.isfinite(sum(sample.tolist())):            # one check; the key is looked for only on failure
+            for key, part in zip(keys, parts):
+                if not np.all(np.isfinite(part)):
+                    raise ValueError(f"airdata_ekf: reading {key!r} is not finite at t = {time}: {part.tolist()}")
         self._filtered = self._filter(sample)                  # Sec. 5: inputs and measurements alike
         if self.pitot_key in readings:
             self._pitot = float(np.asarray(readings[self.pitot_key]).reshape(-1)[0])
@@ -530,11 +550,11 @@ class AirdataEkfDetector:
                 R[3, 3] = variance                           # a_x back in use, on the current's speed
 
         def h(x):                                            # eq. (3) and (31)-(33)
-            return np.concatenate([Rot @ x[:3] + x[3:], model.specific_force(x[:3], omega_p, omega_h, skew)])
+            return np.concatenate([Rot.dot(x[:3]) + x[3:], model.specific_force(x[:3], omega_p, omega_h, skew)])
 
         def H(x):                                   # eq. (50): analytic for GNSS, central differences for the model
             G = np.zeros((6, 6))
-            G[:3, :3], G[:3, 3:] = Rot, np.eye(3)
+            G[:3, :3], G[:3, 3:] = Rot, kalman.eye(3)
             for j in range(3):
                 step = np.zeros(3)
                 step[j] = 1e-4

@@ -39,23 +39,38 @@ class Detector(Protocol):
 
 class Biquad:
     """A second-order IIR filter (b, a) run one sample at a time, direct form II transposed, on a scalar or on
-    several channels at once; it starts at steady state on its first sample (no start-up transient)."""
+    several channels at once; it starts at steady state on its first sample (no start-up transient).
+
+    Per sample: y = b0 x + z0; z0 <- b1 x - a1 y + z1; z1 <- b2 x - a2 y. A scalar runs on Python floats, several
+    channels as three whole-array products (b x, a y) and two sums; the same operations in the same order as
+    the plain form, so the output is bit-identical to it (the per-call cost of numpy, not arithmetic,
+    dominates at this size)."""
 
     def __init__(self, b, a):
         a = np.asarray(a, dtype=float)
         self.b, self.a = np.asarray(b, dtype=float) / a[0], a / a[0]
+        self._b_column, self._a_column = self.b[:, None], self.a[1:, None]
+        self._b_float, self._a_float = tuple(self.b.tolist()), tuple(self.a.tolist())
         self.z = None
 
     def reset(self) -> None:
         self.z = None
 
     def __call__(self, x):
-        b, a = self.b, self.a
         if self.z is None:
-            self.z = np.multiply.outer(signal.lfilter_zi(b, a), x)
-        y = b[0] * x + self.z[0]
-        self.z[0] = b[1] * x - a[1] * y + self.z[1]
-        self.z[1] = b[2] * x - a[2] * y
+            self.z = np.multiply.outer(signal.lfilter_zi(self.b, self.a), x)
+            if self.z.ndim == 1:                                  # a scalar: its state as two floats
+                self.z = tuple(self.z.tolist())
+        if isinstance(self.z, tuple):
+            (b0, b1, b2), (_, a1, a2), (z0, z1) = self._b_float, self._a_float, self.z
+            y = b0 * x + z0
+            self.z = (b1 * x - a1 * y + z1, b2 * x - a2 * y)
+            return y
+        bx = self._b_column * x                                   # b0 x, b1 x, b2 x
+        y = bx[0] + self.z[0]
+        z = bx[1:] - self._a_column * y                           # b1 x - a1 y, b2 x - a2 y
+        z[0] += self.z[1]
+        self.z = z
         return y
 
 

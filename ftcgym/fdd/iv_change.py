@@ -119,8 +119,9 @@ class LowPassBank:
         self.x = np.outer(self._steady, u)
 
     def step(self, u: np.ndarray) -> np.ndarray:
-        y = self.C @ self.x + self.D * u
-        self.x = self.A @ self.x + np.outer(self.B, u)
+        # ndarray.dot and ufunc.outer: the BLAS calls and products of `@` and np.outer, less their per-call cost
+        y = self.C.dot(self.x) + self.D * u
+        self.x = self.A.dot(self.x) + np.multiply.outer(self.B, u)
         return y
 
 
