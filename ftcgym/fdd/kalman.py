@@ -11,20 +11,6 @@ from __future__ import annotations
 
 import numpy as np
 
-try:        # the gufunc behind np.linalg.solve: the same LAPACK gesv, without its ~2 us of argument handling
-    from numpy.linalg._umath_linalg import solve as _gesv
-except ImportError:                                     # pragma: no cover (a numpy without it)
-    _gesv = None
-
-
-def solve(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """A^-1 B for a float64 square A and a 2-D B, bit-identical to np.linalg.solve(A, B) (the same LAPACK call);
-    a singular A gives inf/nan instead of LinAlgError (callers pass innovation covariances, S = H P H^T + R with
-    R > 0, never singular)."""
-    if _gesv is None:                                   # pragma: no cover
-        return np.linalg.solve(A, B)
-    return _gesv(A, B, signature="dd->d")
-
 
 def eye(n: int) -> np.ndarray:
     """I (n x n), built once per size and read-only."""
@@ -51,7 +37,7 @@ def update(x: np.ndarray, P: np.ndarray, y: np.ndarray, H: np.ndarray, R: np.nda
     per-call cost on these small matrices (0 differences in 7e5 random products of the detectors' shapes)."""
     PHt = P.dot(H.T)
     S = H.dot(PHt) + R
-    K = solve(S, PHt.T).T
+    K = np.linalg.solve(S, PHt.T).T
     A = eye(len(x)) - K.dot(H)
     P = A.dot(P).dot(A.T) + K.dot(R).dot(K.T)
     return x + K.dot(y), 0.5 * (P + P.T), S, K

@@ -112,7 +112,6 @@ class LoeKalmanDetector:
             raise ValueError(f"effectiveness_matrix: must be a finite (3, 4) array, got shape {B.shape}")
         self.B = B
         self.Q, self.R = s.Q * np.eye(4), s.R * np.eye(3)
-        self._I = np.eye(4)
         self.k_threshold, self.p_fail_threshold = s.k_threshold, s.p_fail_threshold
         self.k_bounds = s.k_bounds
         self.takeoff_fraction = s.takeoff_fraction
@@ -154,19 +153,12 @@ class LoeKalmanDetector:
 
     def _kalman_step(self, z, H):
         """`kalman_step` (000 Algorithm 1, then the bound on k) by the same operations in the same order, bit for
-        bit, less numpy's per-call cost: products by ndarray.dot (the BLAS calls `@` makes, at a third of its
-        dispatch cost), the gain's solve by the gufunc np.linalg.solve wraps (`kalman.solve`), I built once, and
-        the prediction's symmetrisation left out: P_k-1 leaves the update exactly symmetric, and so P + Q, whose
-        0.5 (P + P^T) is then P + Q again."""
+        bit, with the prediction's symmetrisation left out: P_k-1 leaves the update exactly symmetric, and so
+        P + Q, whose 0.5 (P + P^T) is then P + Q again."""
         P = self.P + self.Q                                          # P_k|k-1 = P_k-1 + Q
-        x, R = self.x, self.R
-        PHt = P.dot(H.T)                                             # kalman.update, Joseph form
-        K = kalman.solve(H.dot(PHt) + R, PHt.T).T
-        A = self._I - K.dot(H)
-        P = A.dot(P).dot(A.T) + K.dot(R).dot(K.T)
-        x = x + K.dot(z - H.dot(x))
+        x, P, _, _ = kalman.update(self.x, P, z - H.dot(self.x), H, self.R)
         lo, hi = self.k_bounds
-        return np.minimum(np.maximum(x, lo), hi), 0.5 * (P + P.T)
+        return np.minimum(np.maximum(x, lo), hi), P
 
     def outputs(self) -> dict:
         return {"k_hat": self.x.copy(), "k_var": np.minimum(np.diag(self.P), VARIANCE_CEILING),
