@@ -8,7 +8,7 @@ import pytest
 
 from ftcgym.benchmark import metrics
 from ftcgym.benchmark.outputs import OutputFolder
-from ftcgym.benchmark.report import format_table, format_value, latency_samples, plot_latencies
+from ftcgym.benchmark.report import format_table, format_value, latency_samples, markdown_table, plot_latencies
 from ftcgym.benchmark.runner import episode_seed, roll_out, run_benchmark, score_episode
 from ftcgym.benchmark.scenarios import get_scenario
 from ftcgym.cli import main
@@ -19,13 +19,17 @@ DESIGN_EPISODE_FIELDS = [
     "detection_delay", "isolated_target", "isolation_correct", "false_alarm", "recovery_time",
     "recovered", "crashed", "altitude_loss", "position_rmse", "airspeed_error_rmse", "flight_time",
 ]
-# ftcgym's additions after them: the quad-plane mission fields (null for the quadrotor).
+# ftcgym's additions after them: the position-return fields (quadrotor faults), the quad-plane mission fields (null
+# for the quadrotor).
+RETURN_FIELDS = ["return_time_0_5m", "return_time_0_2m", "max_position_error", "final_position_error"]
 QUADPLANE_FIELDS = ["mission_complete", "time_quad_mode", "time_transition", "time_forward_flight",
                     "cruise_airspeed_rmse", "max_attitude_deg", "upset_attitude_deg", "upset_altitude_loss"]
 DESIGN_SUMMARY_FIELDS = [
     "scenario", "policy", "episodes", "detection_delay_median", "detection_delay_p95",
     "missed_detection_rate", "false_alarms_per_hour", "isolation_accuracy",
     "recovery_latency_median", "recovery_latency_p95", "success_rate", "crash_rate",
+    "return_time_0_5m_median", "return_time_0_2m_median", "max_position_error_median",
+    "final_position_error_median", "altitude_loss_median",
 ]
 TIME = np.round(np.arange(0.0, 10.0 + 1e-9, 0.1), 10)
 
@@ -92,6 +96,68 @@ def test_position_rmse():
     assert metrics.position_rmse(position, reference) == pytest.approx(np.sqrt(25 / 2))
 
 
+# ---- position return (hand-made error histories, onset at 2 s, samples every 0.1 s to 10 s) ----
+
+def error_history(*stretches, base=1.0):
+    """An error of `base` m, with (start, stop, value) stretches laid over it."""
+    error = np.full(TIME.shape, base)
+    for start, stop, value in stretches:
+        error[between(start, stop)] = value
+    return error
+
+
+def test_return_time_of_a_flight_that_returns_and_stays():
+    error = error_history((0.0, 2.5, 0.0), (2.5, 3.0, 0.8), (3.0, 4.0, 0.3), (4.0, 11.0, 0.1))
+    assert metrics.return_time(TIME, error, onset=2.0, radius=0.5) == pytest.approx(1.0)   # in at 3.0 s
+    assert metrics.return_time(TIME, error, onset=2.0, radius=0.2) == pytest.approx(2.0)   # in at 4.0 s
+
+
+def test_return_time_is_the_last_entry_into_the_band():
+    error = error_history((0.0, 2.0, 0.0), (3.0, 4.0, 0.1), (5.0, 11.0, 0.1))   # in, out at 4-5 s, back in
+    assert metrics.return_time(TIME, error, onset=2.0, radius=0.5) == pytest.approx(3.0)
+
+
+def test_return_time_is_zero_when_the_band_is_never_left_after_onset():
+    error = error_history((0.0, 1.0, 2.0), base=0.1)   # outside before onset only
+    assert metrics.return_time(TIME, error, onset=2.0, radius=0.5) == 0.0
+
+
+def test_return_time_is_none_for_a_flight_that_never_returns_or_ends_outside():
+    assert metrics.return_time(TIME, error_history(), onset=2.0, radius=0.5) is None
+    leaves = error_history((3.0, 9.0, 0.1))    # back in at 3 s, out again for the last second
+    assert metrics.return_time(TIME, leaves, onset=2.0, radius=0.5) is None
+
+
+def test_return_time_of_a_flight_that_enters_on_its_last_sample():
+    error = error_history((10.0, 11.0, 0.1))
+    assert metrics.return_time(TIME, error, onset=2.0, radius=0.5) == pytest.approx(8.0)
+
+
+def test_a_crash_has_no_return_time_even_inside_the_band():
+    error = error_history((3.0, 11.0, 0.1))
+    assert metrics.return_time(TIME, error, onset=2.0, radius=0.5, crashed=True) is None
+    fields = metrics.return_fields(TIME, np.column_stack([error, 0 * TIME, 0 * TIME]), np.zeros((TIME.size, 3)),
+                                   onset=2.0, crashed=True)
+    assert fields["return_time_0_5m"] is None and fields["return_time_0_2m"] is None
+    assert fields["max_position_error"] == pytest.approx(1.0) and fields["final_position_error"] == pytest.approx(0.1)
+
+
+def test_position_errors_after_onset_and_over_the_last_2_s():
+    north = error_history((0.0, 2.0, 5.0), (3.0, 4.0, 2.0), (4.0, 8.0, 0.3), (8.0, 11.0, 0.0))
+    east = np.where(between(9.0, 11.0), 0.4, 0.0)        # the last 2 s (8.0-10.0 s): on target, then 0.4 m east
+    position = np.column_stack([north, east, np.full(TIME.shape, -5.0)])
+    reference = np.tile([0.0, 0.0, -5.0], (TIME.size, 1))
+    fields = metrics.return_fields(TIME, position, reference, onset=2.0, crashed=False)
+    assert fields["max_position_error"] == pytest.approx(2.0)         # the 5 m before onset does not count
+    assert fields["final_position_error"] == pytest.approx(np.sqrt(11 / 21 * 0.16))   # 11 of 21 samples 0.4 m
+    assert fields["return_time_0_5m"] == pytest.approx(2.0) and fields["return_time_0_2m"] is None
+
+
+def test_no_sample_after_onset_gives_no_return_fields():
+    assert metrics.return_time(TIME, error_history(base=0.0), onset=11.0, radius=0.5) is None
+    assert metrics.max_position_error(TIME, error_history(), onset=11.0) is None
+
+
 # ---- summary ----
 
 def episode(**fields):
@@ -121,6 +187,7 @@ def test_summary_of_fault_episodes_with_a_detector():
         "isolation_accuracy": 0.5,                           # over the two detected faults
         "recovery_latency_median": 1.75, "recovery_latency_p95": 1.5 + 0.95 * 0.5,
         "success_rate": 0.5, "crash_rate": 0.25,
+        **dict.fromkeys(DESIGN_SUMMARY_FIELDS[12:]),           # no position-return fields in these rows
     }
     assert summary == pytest.approx({"scenario": "s", "policy": "p", **expected})
 
@@ -130,7 +197,33 @@ def test_summary_of_fault_free_episodes_without_a_detector():
     summary = metrics.summarize(rows)
     assert [(row["policy"], row["episodes"], row["success_rate"], row["crash_rate"]) for row in summary] == [
         ("a", 2, 0.5, 0.5), ("b", 1, 0.0, 1.0)]
-    assert all(summary[0][field] is None for field in DESIGN_SUMMARY_FIELDS[3:10])
+    assert all(summary[0][field] is None for field in DESIGN_SUMMARY_FIELDS[3:10] + DESIGN_SUMMARY_FIELDS[12:])
+
+
+def returned(time_0_5m, time_0_2m=None, **fields):
+    return episode(**{"fault_onset": 2.0, "return_time_0_5m": time_0_5m, "return_time_0_2m": time_0_2m,
+                      "max_position_error": 1.0, "final_position_error": 0.1, "altitude_loss": 0.2, **fields})
+
+
+def test_return_medians_count_a_flight_that_never_returned_as_inf():
+    rows = [returned(1.0, 2.0), returned(3.0), returned(None, max_position_error=5.0, altitude_loss=4.0, crashed=True),
+            episode()]                               # fault-free: no return fields, not counted
+    [summary] = metrics.summarize(rows)
+    assert summary["return_time_0_5m_median"] == pytest.approx(3.0)       # of 1, 3, inf
+    assert summary["return_time_0_2m_median"] is None                      # of 2, inf, inf: inf
+    assert summary["max_position_error_median"] == pytest.approx(1.0)     # of 1, 1, 5
+    assert summary["final_position_error_median"] == pytest.approx(0.1)
+    assert summary["altitude_loss_median"] == pytest.approx(0.2)
+    [even] = metrics.summarize([returned(1.0), returned(None)])
+    assert even["return_time_0_5m_median"] is None                         # the mean of 1 and inf
+    [finite] = metrics.summarize([returned(1.0), returned(2.0)])
+    assert finite["return_time_0_5m_median"] == pytest.approx(1.5)
+
+
+def test_quad_plane_faults_do_not_count_as_never_returned():
+    rows = [episode(fault_onset=45.0, recovered=True, recovery_time=46.0)]   # no position-return fields
+    [summary] = metrics.summarize(rows)
+    assert summary["return_time_0_5m_median"] is None and summary["max_position_error_median"] is None
 
 
 def test_latency_plot_takes_detected_and_recovered_fault_episodes(tmp_path):
@@ -147,8 +240,12 @@ def test_latency_plot_takes_detected_and_recovered_fault_episodes(tmp_path):
 
 def test_table_cells():
     assert [format_value(v) for v in (None, 0.123456, 327.27, 4, "quad")] == ["-", "0.123", "327", "4", "quad"]
-    table = format_table([{field: None for field in DESIGN_SUMMARY_FIELDS} | {"scenario": "s", "policy": "p"}])
+    row = {field: None for field in DESIGN_SUMMARY_FIELDS} | {"scenario": "s", "policy": "p"}
+    table = format_table([row])
     assert table.splitlines()[2].split() == ["s", "p"] + ["-"] * 10
+    assert "return 0.5 m med (s)" in table and "p95" not in table and "final error" not in table
+    markdown = markdown_table([row])
+    assert markdown.splitlines()[0].count("|") == len(DESIGN_SUMMARY_FIELDS) + 1   # report.md: every column
 
 
 # ---- the runner on a fake env: what a policy sees, and what gets scored ----
@@ -212,6 +309,8 @@ def test_fake_episode_scores():
         "detection_delay": 0.3, "isolated_target": 1, "isolation_correct": True, "false_alarm": False,
         "recovery_time": 3.0, "recovered": True, "crashed": False, "altitude_loss": 0.9,
         "position_rmse": np.sqrt(2.85 / 61), "airspeed_error_rmse": None, "flight_time": 6.0,
+        # 0.9 m below at 2.9 s, on target from 3.0 s; the last 2 s (4-6 s) on target
+        "return_time_0_5m": 1.0, "return_time_0_2m": 1.0, "max_position_error": 0.9, "final_position_error": 0.0,
         **dict.fromkeys(QUADPLANE_FIELDS),
     })
 
@@ -253,11 +352,12 @@ def test_bench_cli_end_to_end(tmp_path, capsys):
                  "--env-kwargs", '{"max_episode_seconds": 2}', "--out", str(tmp_path)]) == 0
     results = json.loads((tmp_path / "results.json").read_text())
     assert set(results) == {"summary", "episodes", "config"}
-    assert [list(row) for row in results["episodes"]] == [DESIGN_EPISODE_FIELDS + QUADPLANE_FIELDS]
+    assert [list(row) for row in results["episodes"]] == [DESIGN_EPISODE_FIELDS + RETURN_FIELDS + QUADPLANE_FIELDS]
     assert [list(row) for row in results["summary"]] == [DESIGN_SUMMARY_FIELDS]
     [row] = results["episodes"]
     assert row["flight_time"] == pytest.approx(2.0) and row["crashed"] is False
     assert row["position_rmse"] < 0.5   # the nominal controller holds a 2 s hover
+    assert all(row[field] is None for field in RETURN_FIELDS)   # no fault
     with (tmp_path / "episodes.csv").open() as file:
         assert len(list(csv.DictReader(file))) == 1
     assert (tmp_path / "quad-hover.png").stat().st_size > 0
@@ -282,3 +382,18 @@ def test_summary_counts_a_pitot_alarm_naming_the_pitot_as_isolated():
                     recovery_time=45.1)]
     [summary] = metrics.summarize(rows)
     assert summary["isolation_accuracy"] == 1.0
+
+
+def test_the_goto_scenarios_fly_the_anchor_set_up_outside_the_defaults():
+    from ftcgym.benchmark.scenarios import SCENARIOS, default_scenarios
+    names = ["quad-rotor-loss-goto", "quad-rotor-loss-goto-mueller", "quad-rotor-loss-goto-wind",
+             "quad-rotor-loss-goto-wind-mueller"]
+    assert not set(names) & {scenario.name for scenario in default_scenarios()}
+    for name in names:
+        kwargs = SCENARIOS[name].env_kwargs
+        assert kwargs["task"]["name"] == "goto" and kwargs["faults"] == [
+            {"kind": "rotor_loss", "target": "random", "time": 2.5}]
+        assert kwargs.get("vehicle", "bebop2") == ("mueller2014" if name.endswith("mueller") else "bebop2")
+        calm = "wind" not in name.split("goto")[1]
+        assert (kwargs["wind"]["turbulence"] == "none") is calm
+        assert (set(kwargs.get("sensors", {}).values()) == {0.0}) is calm

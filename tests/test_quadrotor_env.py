@@ -8,6 +8,7 @@ from gymnasium.utils.env_checker import check_env
 
 from ftcgym.agents import make_policy
 from ftcgym.models import FaultSpec
+from ftcgym.models.tasks import make_task
 
 
 def test_gymnasium_check_env():
@@ -195,3 +196,21 @@ def test_rgb_array_render():
     env.reset(seed=0)
     frame = env.render()
     assert frame.shape == (360, 480, 3) and frame.dtype == np.uint8 and frame.std() > 1.0
+
+
+def test_goto_task_steps_its_set_point_after_step_time_and_starts_at_the_first():
+    task = make_task({"name": "goto", "altitude": 4.0, "north": 2.0, "step_north": 1.0, "step_east": -3.0,
+                      "step_altitude": 1.5, "step_time": 1.0})
+    np.testing.assert_allclose(task.reference(1.0).position, [2.0, 0.0, -4.0])
+    np.testing.assert_allclose(task.reference(1.002).position, [3.0, -3.0, -5.5])
+    assert not task.reference(5.0).velocity.any()
+    assert task.extent() == {"horizontal": 3.0, "altitude": 5.5, "speed": 0.0}
+    env = make_env(task="goto")          # default: (1, 1, 0) m right after the start
+    try:
+        obs, info = env.reset(seed=0)
+        np.testing.assert_allclose(info["reference"]["position"], [0.0, 0.0, -5.0])
+        assert np.linalg.norm(info["truth"]["position"] - [0.0, 0.0, -5.0]) < 0.1
+        _, _, _, _, info = env.step(np.full(4, 0.5))
+        np.testing.assert_allclose(info["reference"]["position"], [1.0, 1.0, -5.0])
+    finally:
+        env.close()

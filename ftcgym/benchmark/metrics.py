@@ -23,15 +23,24 @@ EPISODE_FIELDS = (
     "detection_delay", "isolated_target", "isolation_correct", "false_alarm", "recovery_time",
     "recovered", "crashed", "altitude_loss", "position_rmse", "airspeed_error_rmse", "flight_time",
 )
+#: position-return fields of a quadrotor fault episode, appended to each episode row; null without a fault and on
+#: the quad-plane
+RETURN_FIELDS = ("return_time_0_5m", "return_time_0_2m", "max_position_error", "final_position_error")
 #: quad-plane mission fields, appended to each episode row; null for the quadrotor
 QUADPLANE_FIELDS = ("mission_complete", "time_quad_mode", "time_transition", "time_forward_flight",
                     "cruise_airspeed_rmse", "max_attitude_deg", "upset_attitude_deg", "upset_altitude_loss")
-EPISODE_FIELDS = EPISODE_FIELDS + QUADPLANE_FIELDS
+EPISODE_FIELDS = EPISODE_FIELDS + RETURN_FIELDS + QUADPLANE_FIELDS
 SUMMARY_FIELDS = (
     "scenario", "policy", "episodes", "detection_delay_median", "detection_delay_p95",
     "missed_detection_rate", "false_alarms_per_hour", "isolation_accuracy",
     "recovery_latency_median", "recovery_latency_p95", "success_rate", "crash_rate",
+    "return_time_0_5m_median", "return_time_0_2m_median", "max_position_error_median",
+    "final_position_error_median", "altitude_loss_median",
 )
+#: radii (m) of the position-return bands, by field
+RETURN_BANDS = {"return_time_0_5m": 0.5, "return_time_0_2m": 0.2}
+#: the final position error is the RMS over this many seconds at the end of the episode
+FINAL_WINDOW = 2.0
 
 UP = np.array([0.0, 0.0, -1.0])       # NED: the thrust axis of a level vehicle
 
@@ -151,6 +160,49 @@ def position_rmse(position, reference_position) -> float:
     return float(np.sqrt(np.mean(np.sum(error**2, axis=-1))))
 
 
+def position_error(position, reference_position) -> np.ndarray:
+    """Distance (m, (N,)) between each position and its reference position (both (N, 3))."""
+    return np.linalg.norm(np.asarray(position, dtype=float) - np.asarray(reference_position, dtype=float), axis=-1)
+
+
+def return_time(time, error, onset: float, radius: float, crashed: bool = False) -> float | None:
+    """Seconds from `onset` to the first sample from which `error` stays within `radius` until the last sample
+    (docs/concepts.md, 'Benchmark metrics'): the last entry into the band. 0 if it never leaves the band after
+    onset; None if the last sample is outside it, the episode crashed or no sample is at or after onset."""
+    time, error = np.asarray(time, dtype=float), np.asarray(error, dtype=float)
+    after = time >= onset
+    time, error = time[after], error[after]
+    if crashed or time.size == 0 or not error[-1] <= radius:
+        return None
+    outside = np.flatnonzero(~(error <= radius))
+    entry = time[outside[-1] + 1] if outside.size else time[0]
+    return float(entry - onset)
+
+
+def max_position_error(time, error, onset: float) -> float | None:
+    """The largest position error (m) at or after `onset`; None if no sample is."""
+    after = np.asarray(error, dtype=float)[np.asarray(time, dtype=float) >= onset]
+    return float(after.max()) if after.size else None
+
+
+def final_position_error(time, error, window: float = FINAL_WINDOW) -> float | None:
+    """RMS of the position error (m) over the last `window` s of the episode (the samples at or after the last
+    time minus `window`)."""
+    time, error = np.asarray(time, dtype=float), np.asarray(error, dtype=float)
+    if time.size == 0:
+        return None
+    return rms(error[time >= time[-1] - window - 1e-9])
+
+
+def return_fields(time, position, reference_position, onset: float, crashed: bool) -> dict:
+    """RETURN_FIELDS of a fault episode from its per-step true and reference positions."""
+    error = position_error(position, reference_position)
+    fields = {name: return_time(time, error, onset, radius, crashed) for name, radius in RETURN_BANDS.items()}
+    fields["max_position_error"] = max_position_error(time, error, onset)
+    fields["final_position_error"] = final_position_error(time, error)
+    return fields
+
+
 def summarize(episodes: list[dict]) -> list[dict]:
     """One row of SUMMARY_FIELDS per (scenario, policy), in order of first appearance."""
     groups: dict[tuple[str, str], list[dict]] = {}
@@ -177,7 +229,28 @@ def _summary_row(scenario: str, policy: str, rows: list[dict]) -> dict:
         "recovery_latency_p95": _percentile(latencies, 95),
         "success_rate": float(np.mean([_succeeded(row) for row in rows])) if rows else None,
         "crash_rate": float(np.mean([bool(row["crashed"]) for row in rows])) if rows else None,
+        **_return_medians(rows),
     }
+
+
+def _return_medians(rows: list[dict]) -> dict:
+    """Medians of the position-return fields over the episodes that scored them (a `max_position_error`): an
+    episode that never returned counts as +inf in its return-time median, and a median that is inf is None."""
+    scored = [row for row in rows if row.get("max_position_error") is not None]
+    medians = {f"{name}_median": _median_or_none([row[name] if row[name] is not None else np.inf
+                                                 for row in scored]) for name in RETURN_BANDS}
+    for name in ("max_position_error", "final_position_error", "altitude_loss"):
+        medians[f"{name}_median"] = _median_or_none([row[name] for row in rows if row.get(name) is not None])
+    return medians
+
+
+def _median_or_none(values: list[float]) -> float | None:
+    """The median (the mean of the middle two of an even count, as the linear percentile), None of nothing or
+    where it is inf."""
+    if not values:
+        return None
+    median = float(np.median(np.asarray(values, dtype=float)))
+    return median if np.isfinite(median) else None
 
 
 def _percentile(values: list[float], q: float) -> float | None:

@@ -26,7 +26,14 @@ COLUMN_LABELS = {
     "missed_detection_rate": "missed", "false_alarms_per_hour": "FA/h",
     "isolation_accuracy": "isolation", "recovery_latency_median": "recovery med (s)",
     "recovery_latency_p95": "recovery p95 (s)", "success_rate": "success", "crash_rate": "crash",
+    "return_time_0_5m_median": "return 0.5 m med (s)", "return_time_0_2m_median": "return 0.2 m med (s)",
+    "max_position_error_median": "max error med (m)", "final_position_error_median": "final error med (m)",
+    "altitude_loss_median": "altitude loss med (m)",
 }
+#: the columns of the table printed to the terminal (report.md has every SUMMARY_FIELDS column)
+TERMINAL_FIELDS = tuple(field for field in SUMMARY_FIELDS if field not in (
+    "detection_delay_p95", "recovery_latency_p95", "max_position_error_median", "final_position_error_median",
+    "altitude_loss_median"))
 DEFINITIONS = (
     "Definitions (docs/concepts.md, Benchmark metrics): detection delay = alarm time - fault onset, over "
     "detected faults; "
@@ -37,8 +44,13 @@ DEFINITIONS = (
     "stays recovered for 2 s; for a rotor loss, recovered means altitude within 0.5 m of its target "
     "and the thrust axis within 10 deg of the controller's reference. Recovery latency = recovery "
     "time - onset, over recovered episodes. Success = recovered (and not crashed) after a fault, or "
-    "no crash in a fault-free episode. Medians and 95th percentiles interpolate linearly; '-' marks "
-    "a figure that does not apply."
+    "no crash in a fault-free episode. Position return (quadrotor faults; the error is the 3-D distance "
+    "between the true position and the task's set-point at each agent step): return 0.5 m (0.2 m) = seconds from "
+    "onset to the last entry into the 0.5 m (0.2 m) band, after which the error stays inside it to the episode's "
+    "end; none if the episode crashed or ended outside the band, counted as +inf in the median (shown '-' when "
+    "the median is inf). Max error = the largest error after onset; final error = RMS error over the episode's "
+    "last 2 s; altitude loss = altitude at onset minus the lowest altitude after it. Medians and 95th "
+    "percentiles interpolate linearly; '-' marks a figure that does not apply."
 )
 
 
@@ -51,10 +63,11 @@ def format_value(value) -> str:
     return str(value)
 
 
-def format_table(summary: list[dict]) -> str:
-    """The summary as a plain text table, text left-aligned and numbers right-aligned."""
-    header = [COLUMN_LABELS[field] for field in SUMMARY_FIELDS]
-    cells = [[format_value(row[field]) for field in SUMMARY_FIELDS] for row in summary]
+def format_table(summary: list[dict], fields: tuple[str, ...] = TERMINAL_FIELDS) -> str:
+    """The summary's `fields` (default: the terminal's) as a plain text table, text left-aligned and numbers
+    right-aligned."""
+    header = [COLUMN_LABELS[field] for field in fields]
+    cells = [[format_value(row[field]) for field in fields] for row in summary]
     widths = [max(len(column) for column in columns) for columns in zip(header, *cells)]
     text_columns = 2  # scenario and policy
 

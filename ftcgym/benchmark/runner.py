@@ -161,6 +161,7 @@ def score_episode(log: EpisodeLog) -> dict:
         "position_rmse": metrics.position_rmse(log.position, log.reference_position),
         "airspeed_error_rmse": None,  # the quadrotor has no airspeed source to get wrong
         "flight_time": float(log.time[-1]),
+        **dict.fromkeys(metrics.RETURN_FIELDS),
         **dict.fromkeys(metrics.QUADPLANE_FIELDS),
     }
     if log.skew is not None:
@@ -172,6 +173,7 @@ def score_episode(log: EpisodeLog) -> dict:
         scores["recovery_time"] = metrics.recovery_time(log.time, recovered, onset)
         scores["recovered"] = scores["recovery_time"] is not None and not log.crashed
         scores["altitude_loss"] = metrics.altitude_loss(log.time, altitude, onset)
+        scores.update(metrics.return_fields(log.time, log.position, log.reference_position, onset, log.crashed))
     return scores
 
 

@@ -38,7 +38,7 @@ class FlightEnv(gym.Env):
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 30}
     RESET_OPTIONS = ("faults", "wind", "vehicle_overrides")
-    TASKS = ("hover", "square", "mission")    # the tasks a vehicle flies (`tasks.TASKS` names)
+    TASKS = ("hover", "goto", "square", "mission")    # the tasks a vehicle flies (`tasks.TASKS` names)
     BOUNDS = 100.0        # m, half-width of the flight box
     CEILING = 100.0       # m
     MAX_SPEED = 100.0     # m/s, observation bound on velocities

@@ -43,7 +43,7 @@ class QuadrotorEnv(FlightEnv):
     """Quadrotor with motor-level actions; see the module docstring for spaces, reward and termination."""
 
     controls = "rotors"                 # what the action commands
-    TASKS = ("hover", "square")
+    TASKS = ("hover", "goto", "square")
     BOUNDS = CEILING = BOUNDS
 
     def __init__(self, vehicle: str = "bebop2", vehicle_overrides: dict | None = None, wind: dict | None = None,

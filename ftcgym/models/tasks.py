@@ -1,6 +1,9 @@
 """Tasks: the reference a vehicle should follow (position, velocity, yaw in NED) and where it starts.
 
 - hover: hold a set-point (default 5 m above the origin, yaw 0).
+- goto: start at a set-point (as hover), which steps after `step_time` by (`step_north`, `step_east`,
+  `step_altitude`) m (default (1, 1, 0) m, right after the start) and is held there: a set-point step, zero
+  reference velocity.
 - square: 004 Sec. 5.1: from hover, an 8 m x 8 m square at constant altitude (8 m) flown at `speed`
   along the path, plus 004's sinusoidal speed excitation
   v = 0.5 sin(2.51t)cos(3.14t) + 0.5 sin(3.14t)cos(4.19t) + 0.5 sin(4.19t)cos(6.28t),
@@ -58,6 +61,42 @@ class HoverTask:
     def extent(self) -> dict:
         """The farthest set-point from home (|north| or |east|), the highest altitude and the fastest speed."""
         return {"horizontal": max(abs(self.north), abs(self.east)), "altitude": self.altitude, "speed": 0.0}
+
+
+@dataclass(frozen=True)
+class GotoTask:
+    """Start at and hold `altitude` m above (north, east) up to `step_time` s; after it, hold the point
+    (`step_north`, `step_east`, `step_altitude`) m away (north, east, up). The env starts the vehicle at the
+    set-point of t = 0, the start point even with `step_time` 0 (the default: the step comes right after the
+    start, as in the anchor run of Chen et al. 2025)."""
+
+    name = "goto"
+    altitude: float = 5.0
+    north: float = 0.0
+    east: float = 0.0
+    yaw: float = 0.0
+    step_north: float = 1.0
+    step_east: float = 1.0
+    step_altitude: float = 0.0
+    step_time: float = 0.0
+
+    def __post_init__(self):
+        if not self.altitude + self.step_altitude > 0.0:
+            raise ValueError(f"task['step_altitude']: the set-point after the step must be above the ground "
+                             f"(altitude + step_altitude > 0), got {self.altitude:g} + {self.step_altitude:g}")
+
+    def reference(self, t: float) -> Reference:
+        stepped = t > self.step_time
+        north = self.north + (self.step_north if stepped else 0.0)
+        east = self.east + (self.step_east if stepped else 0.0)
+        altitude = self.altitude + (self.step_altitude if stepped else 0.0)
+        return Reference(np.array([north, east, -altitude]), np.zeros(3), self.yaw)
+
+    def extent(self) -> dict:
+        """As `HoverTask.extent`, over both set-points; a step's reference speed is 0."""
+        return {"horizontal": max(abs(self.north), abs(self.east), abs(self.north + self.step_north),
+                                  abs(self.east + self.step_east)),
+                "altitude": max(self.altitude, self.altitude + self.step_altitude), "speed": 0.0}
 
 
 @dataclass(frozen=True)
@@ -124,10 +163,10 @@ class MissionTask:
                 "speed": max(self.cruise_airspeed, self.climb_rate, self.descent_rate)}
 
 
-TASKS = {"hover": HoverTask, "square": SquareTask, "mission": MissionTask}
+TASKS = {"hover": HoverTask, "goto": GotoTask, "square": SquareTask, "mission": MissionTask}
 
 
-def make_task(task) -> HoverTask | SquareTask | MissionTask:
+def make_task(task) -> HoverTask | GotoTask | SquareTask | MissionTask:
     """A task from its name or a dict {"name": ..., <field>: value}; bad input raises ValueError."""
     if isinstance(task, tuple(TASKS.values())):
         return task
@@ -153,5 +192,5 @@ def make_task(task) -> HoverTask | SquareTask | MissionTask:
 _TASK_RANGES = {
     **{key: POSITIVE for key in ("altitude", "side", "speed", "cruise_airspeed", "circuit_radius", "laps",
                                  "climb_rate", "descent_rate")},
-    "hold": NON_NEGATIVE, "hover_time": NON_NEGATIVE, "yaw": Range(-np.pi, np.pi),
+    "hold": NON_NEGATIVE, "hover_time": NON_NEGATIVE, "step_time": NON_NEGATIVE, "yaw": Range(-np.pi, np.pi),
 }
