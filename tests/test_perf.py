@@ -25,13 +25,15 @@ def test_perf_json_names_its_fields(capsys):
     """The fields of `ftcgym perf --json` (not the numbers): what docs and scripts quote."""
     assert main(["perf", "--steps", "30", "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
-    assert set(report) == {"env", "detector_us_per_update", "detector_us_per_step", "detector_budget_us"}
+    assert set(report) == {"env", "bare_pybullet_physics_steps_per_s", "detector_us_per_update",
+                           "detector_us_per_step", "detector_budget_us"}
     assert report["detector_budget_us"] == DETECTOR_BUDGET_US == 18.0
     assert set(report["detector_us_per_update"]) == set(report["detector_us_per_step"]) == set(DETECTORS)
     assert {row["case"] for row in report["env"]} >= {"Quadrotor random, 500/500 Hz", "QuadPlane autopilot, 500/100 Hz"}
     for row in report["env"]:
         assert set(row) == {"case", "steps_per_s", "physics_steps_per_s", "sim_s_per_wall_s", "resets", "reset_ms",
-                            "wall_s", "peak_rss_mib", "rss_growth_mib"}
+                            "wall_s", "peak_rss_mib", "rss_growth_mib", "step_only_physics_steps_per_s",
+                            "step_only_sim_s_per_wall_s", "bare_loop_share", "pybullet_share"}
 
 
 def test_perf_table_shows_each_detector_against_the_budget(capsys):

@@ -1,12 +1,18 @@
 """`ftcgym perf`: env throughput and memory, the figures to quote.
 
-Measures, single process, resets included: env steps per second (agent and physics) and simulated seconds
-per wall second for Quadrotor-v0 with random actions (at 240/240 Hz and the 500/500 Hz defaults) and with
-the nominal controller in the loop, and for QuadPlane-v0 with random actions (500 Hz physics, agent at 100
-and 500 Hz) and with the mission autopilot; mean reset time; peak resident memory and its growth over the run (a
-leak check); and the cost of one update of each fault detector, alone and with the outputs and status its wrapper
-reads every step (000 reports 18 us per step on a Cortex-A9 in C++, the budget the table marks).
-Sensors, Dryden wind and a fault schedule are on in every case.
+Measures, single process: env steps per second (agent and physics) and simulated seconds per wall second for
+Quadrotor-v0 with random actions (at 240/240 Hz, 240/30 Hz and the 500/500 Hz defaults) and with the nominal
+controller in the loop, and for QuadPlane-v0 with random actions (500 Hz physics, agent at 100 and 500 Hz) and
+with the mission autopilot, both with resets included and step time only; mean reset time; peak resident memory
+and its growth over the run (a leak check); and the cost of one update of each fault detector, alone and with the
+outputs and status its wrapper reads every step (000 reports 18 us per step on a Cortex-A9 in C++, the budget
+the table marks). Sensors, Dryden wind and a fault schedule are on in every case.
+
+The reference is a bare PyBullet loop measured in the same run: the ground plane and one box, per physics step
+one force and one torque applied, a step and a state read (position, orientation, velocity), as the envs do.
+Each case reports its physics steps per second as a share of that loop's, and an estimate of the share of its
+time spent inside PyBullet (the bare loop's time per physics step times the case's physics steps, over its wall
+time).
 """
 from __future__ import annotations
 
@@ -30,6 +36,7 @@ WORKLOAD = {QUADROTOR: {"wind": {"mean": [1.0, -1.0, 0.0], "turbulence": "light"
             QUADPLANE: {"wind": {"mean": [-3.0, 4.0, 0.0], "turbulence": "light"}, "max_episode_seconds": 150.0}}
 CASES = (
     ("Quadrotor random, 240/240 Hz", QUADROTOR, {"physics_hz": 240, "agent_hz": 240}, "random"),
+    ("Quadrotor random, 240/30 Hz", QUADROTOR, {"physics_hz": 240, "agent_hz": 30}, "random"),
     ("Quadrotor random, 500/500 Hz", QUADROTOR, {}, "random"),
     ("Quadrotor nominal, 500/500 Hz", QUADROTOR, {}, "nominal"),
     ("QuadPlane random, 500/100 Hz", QUADPLANE, {}, "random"),
@@ -74,9 +81,41 @@ def measure(env_id: str, env_kwargs: dict, actor: str, steps: int, seed: int) ->
     wall = time.perf_counter() - start
     agent_hz, substeps = env.unwrapped.agent_hz, env.unwrapped.substeps
     env.close()
+    stepping = wall - reset_time
     return {"steps_per_s": steps / wall, "physics_steps_per_s": steps * substeps / wall,
-            "sim_s_per_wall_s": steps / agent_hz / wall, "resets": resets,
+            "sim_s_per_wall_s": steps / agent_hz / wall, "step_only_sim_s_per_wall_s": steps / agent_hz / stepping,
+            "step_only_physics_steps_per_s": steps * substeps / stepping, "resets": resets,
             "reset_ms": 1e3 * reset_time / max(resets, 1), "wall_s": wall}
+
+
+def bare_pybullet_loop(steps: int, physics_hz: float = 500.0, repeats: int = 3) -> float:
+    """Physics steps per second of a bare PyBullet loop, the best of `repeats`: the ground plane and one box of
+    the default quadrotor's mass and size; per step a force and a torque (world frame), `stepSimulation` and
+    the state read (`getBasePositionAndOrientation`, `getBaseVelocity`); sleeping disabled, as for a flying body."""
+    from ftcgym.envs.world import p  # PyBullet, imported with its start-up banner silenced
+    best = 0.0
+    for _ in range(repeats):
+        c = p.connect(p.DIRECT)
+        try:
+            p.setGravity(0.0, 0.0, -9.81, physicsClientId=c)
+            p.setTimeStep(1.0 / physics_hz, physicsClientId=c)
+            p.createMultiBody(0.0, p.createCollisionShape(p.GEOM_PLANE, physicsClientId=c), physicsClientId=c)
+            box = p.createCollisionShape(p.GEOM_BOX, halfExtents=[0.165, 0.19, 0.045], physicsClientId=c)
+            body = p.createMultiBody(0.374, box, basePosition=[0.0, 0.0, 1.0], physicsClientId=c)
+            # a body at rest would fall asleep and step for free; the envs' bodies move
+            p.changeDynamics(body, -1, activationState=p.ACTIVATION_STATE_DISABLE_SLEEPING, physicsClientId=c)
+            lift, frame = (0.0, 0.0, 0.374 * 9.81), p.WORLD_FRAME
+            start = time.perf_counter()
+            for _ in range(steps):
+                position, _ = p.getBasePositionAndOrientation(body, physicsClientId=c)
+                p.applyExternalForce(body, -1, lift, position, frame, physicsClientId=c)
+                p.applyExternalTorque(body, -1, (0.0, 0.0, 1e-4), frame, physicsClientId=c)
+                p.stepSimulation(physicsClientId=c)
+                p.getBaseVelocity(body, physicsClientId=c)
+            best = max(best, steps / (time.perf_counter() - start))
+        finally:
+            p.disconnect(c)
+    return best
 
 
 #: the vehicle each detector is made for (default: the quadrotor)
@@ -150,29 +189,37 @@ def _rss_mib() -> float:
 def run(args, argv: list[str] | None = None) -> int:
     measure(QUADROTOR, {}, "nominal", 200, args.seed)  # warm-up: one-time allocations must not read as growth
     measure(QUADPLANE, {}, "autopilot", 200, args.seed)
+    bare = bare_pybullet_loop(args.steps)
     rows = []
     for name, env_id, kwargs, actor in CASES:
         before = _rss_mib()
         row = measure(env_id, kwargs, actor, args.steps, args.seed)
-        row.update(case=name, peak_rss_mib=_rss_mib(), rss_growth_mib=_rss_mib() - before)
+        row.update(case=name, peak_rss_mib=_rss_mib(), rss_growth_mib=_rss_mib() - before,
+                   bare_loop_share=row["step_only_physics_steps_per_s"] / bare,
+                   pybullet_share=min(row["physics_steps_per_s"] / bare, 1.0))
         rows.append(row)
     costs = detector_step_costs(min(args.steps, 5000), args.seed)
     if args.json:
-        print(json.dumps({"env": rows,
+        print(json.dumps({"env": rows, "bare_pybullet_physics_steps_per_s": bare,
                           "detector_us_per_update": {name: c["update_us"] for name, c in costs.items()},
                           "detector_us_per_step": {name: c["step_us"] for name, c in costs.items()},
                           "detector_budget_us": DETECTOR_BUDGET_US}, indent=2))
         return 0
-    print(f"ftcgym perf: {args.steps} agent steps per case, one process, resets included")
+    print(f"ftcgym perf: {args.steps} agent steps per case, one process")
     for env_id, workload in WORKLOAD.items():
         print(f"workload {env_id}: {workload}")
-    header = (f"{'case':34} {'steps/s':>9} {'physics/s':>10} {'sim s/s':>8} {'resets':>7} {'reset ms':>9} "
-              f"{'peak MiB':>9} {'growth MiB':>10}")
+    print(f"bare PyBullet loop (ground + one box; force, torque, step, state read): {bare:.0f} physics steps/s")
+    header = (f"{'case':34} {'steps/s':>9} {'physics/s':>10} {'sim s/s':>8} {'step-only':>9} {'of bare':>8} "
+              f"{'in PyB':>7} {'resets':>7} {'reset ms':>9} {'peak MiB':>9} {'growth MiB':>10}")
     print(header)
     print("-" * len(header))
     for r in rows:
         print(f"{r['case']:34} {r['steps_per_s']:9.0f} {r['physics_steps_per_s']:10.0f} {r['sim_s_per_wall_s']:8.1f} "
+              f"{r['step_only_sim_s_per_wall_s']:9.1f} {r['bare_loop_share']:8.0%} {r['pybullet_share']:7.0%} "
               f"{r['resets']:7d} {r['reset_ms']:9.3f} {r['peak_rss_mib']:9.1f} {r['rss_growth_mib']:10.1f}")
+    print("\nsim s/s: simulated seconds per wall second, resets included; step-only: the same without the resets' "
+          "time;\nof bare: physics steps/s (step-only) as a share of the bare loop's; in PyB: estimated share of the "
+          "time inside PyBullet")
     print(f"\ndetector cost per sample (us), best of 3 replays of a recorded flight of its vehicle; budget "
           f"{DETECTOR_BUDGET_US:g} us per update (000, Cortex-A9, C++):")
     print(f"  {'detector':17} {'update':>8} {'+outputs,status':>16}  budget")

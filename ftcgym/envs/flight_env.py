@@ -46,7 +46,7 @@ class FlightEnv(gym.Env):
     CRASH_TILT = np.deg2rad(60.0)   # rad, ground contact more tilted than this is a crash
 
     def _setup(self, vehicle, vehicle_overrides, wind, faults, task, max_episode_seconds, physics_hz, agent_hz,
-               render_mode, render_size=RENDER_SIZE, unknown: dict | None = None) -> None:
+               render_mode, render_size=RENDER_SIZE, unknown: dict | None = None, info_level: str = "full") -> None:
         """Validate the shared keyword arguments and build the task, wind and faults (`_open_world` follows,
         once the subclass has validated the rest, so a failed make holds no PyBullet client)."""
         self.world = None
@@ -61,13 +61,18 @@ class FlightEnv(gym.Env):
             raise ValueError(f"render_mode: {render_mode!r}; accepted: None, {self.metadata['render_modes']}")
         self.render_mode = render_mode
         self.render_size = check_render_size(render_size)
+        if info_level not in INFO_LEVELS:
+            raise ValueError(f"info_level: {info_level!r}; accepted: {list(INFO_LEVELS)}")
+        self.info_level = info_level
         # gymnasium's RecordVideo films one frame per step at render_fps: the agent rate makes it real time
         self.metadata = {**self.metadata, "render_fps": _whole(self.agent_hz)}
         self.task = self._check_task(make_task(task))
         self.wind = self._configured_wind = DrydenWind.from_config(wind, self.dt)
         self.fault_specs = self._configured_faults = self._parse_faults(faults)
         self._check_faults(self.params, self.fault_specs)
-        self._gravity = np.array([0.0, 0.0, GRAVITY])
+        self._R_array = np.zeros((3, 3))       # the attitude as a matrix, for the rotations into the world
+        self._R_flat = self._R_array.reshape(9)
+        self._vec3 = np.zeros(3)
 
     def _open_world(self) -> None:
         """Connect the PyBullet client (the last step of `__init__`). A window needs a display: without one
@@ -162,10 +167,20 @@ class FlightEnv(gym.Env):
             self.render()
         return obs, terminated, truncated
 
-    def _integrate(self, R: np.ndarray, force: np.ndarray, moment: np.ndarray) -> None:
-        """One physics step with the body-frame force and moment; then the faults of the new time and the state."""
-        v_before = self._vel
-        self.world.step(R @ force, R @ moment, self._pos)
+    def _integrate(self, force, moment) -> None:
+        """One physics step with the body-frame force and moment (3 floats each); then the faults of the new
+        time and the state.
+
+        The physics step works on plain floats (`_p`, `_v`, `_q`, `_Rm` row-major, `_w`: position, velocity,
+        quaternion, rotation matrix and body rates; `_pos`, `_vel`, ... give them as arrays). The two rotations
+        into the world frame stay numpy matrix-vector products: BLAS rounds them with a fused multiply-add that
+        plain Python cannot reproduce, and the trajectories stay bit-identical with it."""
+        v_before = self._v
+        R, rotate, vec = self._Rm, self._R_array, self._vec3
+        vec[0], vec[1], vec[2] = force
+        force_ned = np.dot(rotate, vec).tolist()
+        vec[0], vec[1], vec[2] = moment
+        self.world.step(force_ned, np.dot(rotate, vec).tolist(), self._p)
         self._physics_steps += 1
         self.time = self._physics_steps / self.physics_hz  # counted, so it never drifts
         self._apply_faults()
@@ -173,32 +188,51 @@ class FlightEnv(gym.Env):
         # An IMU measures the specific force over the interval: (dv/dt - g) in the body frame. PyBullet's
         # semi-implicit step applies the force set with the attitude R at the step's start, so R (not the
         # attitude after the step) maps it back exactly; contact forces are included.
-        self._specific_force = R.T @ ((self._vel - v_before) / self.dt - self._gravity)
-        self._v_before = v_before
+        dt, v = self.dt, self._v
+        d0, d1, d2 = (v[0] - v_before[0]) / dt, (v[1] - v_before[1]) / dt, (v[2] - v_before[2]) / dt - GRAVITY
+        self._sf = (R[0] * d0 + R[3] * d1 + R[6] * d2, R[1] * d0 + R[4] * d1 + R[7] * d2,
+                    R[2] * d0 + R[5] * d1 + R[8] * d2)
+        self._vb = v_before
 
     def _read_state(self) -> None:
-        self._pos, self._quat, self._R, self._vel, ang = self.world.state()
-        self._rates = self._R.T @ ang
+        """One read of the body's state (`PyBulletWorld.read`); body rates R^T omega."""
+        self._p, self._q, R, self._v, (a, b, c) = self.world.read()
+        self._Rm = R
+        self._R_flat[:] = R
+        self._w = (R[0] * a + R[3] * b + R[6] * c, R[1] * a + R[4] * b + R[7] * c, R[2] * a + R[5] * b + R[8] * c)
 
     def _at_rest_readings(self) -> None:
         """Velocity history and specific force of a body at rest (reset's last step)."""
         self._read_state()
-        self._v_before = self._vel
-        self._specific_force = self._R.T @ -self._gravity
+        self._vb = self._v
+        R, g = self._Rm, -GRAVITY
+        self._sf = (R[0] * -0.0 + R[3] * -0.0 + R[6] * g, R[1] * -0.0 + R[4] * -0.0 + R[7] * g,
+                    R[2] * -0.0 + R[5] * -0.0 + R[8] * g)
+
+    # The state as fresh arrays, for the code that works per agent step (observations, info, rendering).
+    _pos = property(lambda self: np.array(self._p))
+    _vel = property(lambda self: np.array(self._v))
+    _quat = property(lambda self: np.array(self._q))
+    _rates = property(lambda self: np.array(self._w))
+    _R = property(lambda self: np.array(self._Rm).reshape(3, 3))
+    _specific_force = property(lambda self: np.array(self._sf))
+    _v_before = property(lambda self: np.array(self._vb))
 
     def _check_crash(self) -> None:
         """Crashed: out of the flight box, or touching the ground too fast or too tilted."""
-        altitude = -self._pos[2]
-        if abs(self._pos[0]) > self.BOUNDS or abs(self._pos[1]) > self.BOUNDS or altitude > self.CEILING:
+        x, y, z = self._p
+        altitude = -z
+        if abs(x) > self.BOUNDS or abs(y) > self.BOUNDS or altitude > self.CEILING:
             self._crashed, self._termination = True, "out_of_bounds"
         elif altitude < self._ground_check_altitude and self.world.touching_ground():
-            impact = math.sqrt(max(self._v_before @ self._v_before, self._vel @ self._vel))
+            a, v = self._vb, self._v
+            impact = math.sqrt(max(a[0] * a[0] + a[1] * a[1] + a[2] * a[2], v[0] * v[0] + v[1] * v[1] + v[2] * v[2]))
             if impact > self.CRASH_SPEED or self._tilt() > self.CRASH_TILT:
                 self._crashed, self._termination = True, "ground_impact"
 
     def _tilt(self) -> float:
         """Angle between the body -z axis and up."""
-        return float(np.arccos(np.clip(self._R[2, 2], -1.0, 1.0)))
+        return float(np.arccos(np.clip(self._Rm[8], -1.0, 1.0)))
 
     def _with_reference(self, readings: dict) -> dict:
         """The readings plus the task's set-point now (observation keys reference_*)."""
@@ -222,7 +256,7 @@ class FlightEnv(gym.Env):
         self._check_open("render")
         self.world.show(*self._look_state())   # rotor colours and wing skew change only when a frame is drawn
         if self.render_mode == "rgb_array":
-            return self.world.camera_image(self._pos, *self.render_size)
+            return self.world.camera_image(self._p, *self.render_size)
         return None
 
     def _make_look(self):
@@ -245,7 +279,10 @@ class FlightEnv(gym.Env):
 
 def check_action(action, low, high, what: str) -> np.ndarray:
     """`action` as float64 clipped to [low, high]; a wrong type or shape or a non-finite value raises ValueError."""
-    a = real_array(action, "action", f"real numbers, {what}")
+    if type(action) is np.ndarray and action.dtype.kind == "f" and action.shape == low.shape:
+        a = action.astype(np.float64)       # the common case: a float array of the right shape
+    else:
+        a = real_array(action, "action", f"real numbers, {what}")
     if a.shape != np.shape(low):
         raise ValueError(f"action: expected shape {np.shape(low)}: {what}; got shape {a.shape}")
     if not np.isfinite(a).all():
@@ -255,7 +292,10 @@ def check_action(action, low, high, what: str) -> np.ndarray:
 
 #: the keyword arguments of the simulator envs (`gym.make`)
 KEYWORDS = ("vehicle", "vehicle_overrides", "wind", "faults", "task", "max_episode_seconds", "physics_hz", "agent_hz",
-            "sensors", "render_mode", "render_size")
+            "sensors", "render_mode", "render_size", "info_level")
+#: `info_level`: "full" (the info contract, docs/concepts.md) or "minimal" (no `truth`: for training loops that
+#: never read it; the benchmark and the training tasks, whose rewards read the truth, keep "full")
+INFO_LEVELS = ("full", "minimal")
 def check_render_size(size) -> tuple[int, int]:
     """(width, height) in pixels: two whole numbers in [16, MAX_RENDER_SIDE]."""
     try:

@@ -31,7 +31,7 @@ from gymnasium import spaces
 from ..models.faults import QUADPLANE_KINDS, FaultSchedule, parse_faults, resolve
 from ..models.geometry import quat_from_euler
 from ..models.pusher import PusherMotor
-from ..models.quadplane_aero import aero_wrench
+from ..models.quadplane_aero import aero_wrench_floats
 from ..models.rotors import RotorSet
 from ..models.sensors import ACCEL_LIMIT, GYRO_LIMIT, QuadPlaneSensorConfig, QuadPlaneSensors, SensorLimits
 from ..models.vsqp import make_vsqp_params
@@ -61,9 +61,9 @@ class QuadPlaneEnv(FlightEnv):
     def __init__(self, vehicle: str = "vsqp", vehicle_overrides: dict | None = None, wind: dict | None = None,
                  faults=None, task="mission", max_episode_seconds: float = 240.0, physics_hz: float = 500.0,
                  agent_hz: float = 100.0, sensors: dict | None = None, render_mode: str | None = None,
-                 render_size=RENDER_SIZE, **unknown):
+                 render_size=RENDER_SIZE, info_level: str = "full", **unknown):
         self._setup(vehicle, vehicle_overrides, wind, faults, task, max_episode_seconds, physics_hz, agent_hz,
-                    render_mode, render_size, unknown)
+                    render_mode, render_size, unknown, info_level)
         self._sensor_config = QuadPlaneSensorConfig.from_overrides(sensors)
         self._surface_alpha = 1.0 - math.exp(-self.dt / SURFACE_TIME_CONSTANT)
         self.observation_space = self._make_observation_space(self.params)
@@ -133,13 +133,13 @@ class QuadPlaneEnv(FlightEnv):
         self._skew_cmd = 0.0
         self.surfaces = np.zeros(3)
         self._surface_cmd = np.zeros(3)
-        self._omega_cmd = np.zeros(4)
+        self._omega_cmd = [0.0] * 4
         self._throttle = 0.0
         self._apply_faults()
-        self._wind = self.wind.reset(rng)
+        self._wind = tuple(self.wind.reset(rng).tolist())
         self.sensors.reset(rng)
         self._at_rest_readings()
-        self._air_body = self._R.T @ (self._vel - self._wind)
+        self._air_body = self._air_velocity()
         return self._observe(), self._info()
 
     def _start_heading(self) -> float:
@@ -157,24 +157,30 @@ class QuadPlaneEnv(FlightEnv):
         return obs, self._reward(), terminated, truncated, self._info()
 
     def _set_commands(self, command: np.ndarray) -> None:
-        self._omega_cmd = self.hover_rotors.command_to_omega(command[:4])
+        self._omega_cmd = self.hover_rotors.command_to_omega(command[:4]).tolist()
         self._throttle = float(command[4])
         self._surface_cmd = command[5:8] * self._surface_limit
         self._skew_cmd = float(command[8]) * 0.5 * np.pi
 
     def _physics_step(self) -> None:
-        dt, p = self.dt, self.params
-        self.hover_rotors.step(self._omega_cmd, dt)
+        dt, p, rotors = self.dt, self.params, self.hover_rotors
+        omega, _ = rotors.advance(self._omega_cmd, dt)
         self._move_wing_and_surfaces(dt)
-        self._wind = self.wind.step()
-        R = self._R
-        air_body = R.T @ (self._vel - self._wind)
-        self.pusher.step(self._throttle, max(float(air_body[0]), 0.0), dt)
-        force, moment = aero_wrench(p, air_body, self._rates, self.skew, self.surfaces, self.hover_rotors.omega,
-                                    self.hover_rotors.effectiveness, self.pusher.thrust, self.pusher.torque)
-        self.sensors.advance_rotor_phase(self.hover_rotors.omega, dt)
-        self._integrate(R, force, moment)
+        self._wind = self.wind.advance()
+        air_body = self._air_velocity()
+        self.pusher.step(self._throttle, max(air_body[0], 0.0), dt)
+        force, moment = aero_wrench_floats(p, air_body, self._w, self.skew, self.surfaces, omega,
+                                           rotors.effectiveness.tolist(), self.pusher.thrust, self.pusher.torque)
+        self.sensors.advance_rotor_phase(omega, dt)
+        self._integrate(force, moment)
         self._air_body = air_body
+
+    def _air_velocity(self) -> tuple:
+        """R^T (v - wind): the velocity relative to the air in the body frame (floats)."""
+        R, v, wind = self._Rm, self._v, self._wind
+        dx, dy, dz = v[0] - wind[0], v[1] - wind[1], v[2] - wind[2]
+        return (R[0] * dx + R[3] * dy + R[6] * dz, R[1] * dx + R[4] * dy + R[7] * dz,
+                R[2] * dx + R[5] * dy + R[8] * dz)
 
     def _move_wing_and_surfaces(self, dt: float) -> None:
         """The wing turns toward its command at the skew rate limit; surfaces follow their servos' lag."""
@@ -191,8 +197,8 @@ class QuadPlaneEnv(FlightEnv):
 
     # ----------------------------------------------------------------------------------------- outputs
     def _observe(self) -> dict:
-        readings = self.sensors.read(self._pos, self._vel, self._quat, self._rates, self._specific_force,
-                                     self.hover_rotors.omega, float(self._air_body[0]), self.skew,
+        readings = self.sensors.read(self._p, self._v, self._q, self._w, self._sf,
+                                     self.hover_rotors.omega.tolist(), self._air_body[0], self.skew,
                                      self.pusher.omega, self.pusher.current)
         readings["pitot_airspeed"][0] = self._faults.apply_to_pitot(self.time, float(readings["pitot_airspeed"][0]))
         self._faults.apply_to_sensors(self.time, readings)
@@ -201,33 +207,34 @@ class QuadPlaneEnv(FlightEnv):
     def _reward(self) -> float:
         if self._crashed:
             return -CRASH_PENALTY
-        e = self._pos - self._reference.position
-        return float(1.0 - 0.5 * (1.0 - self._R[2, 2]) - 0.01 * min(math.sqrt(e @ e), 50.0))
+        (x, y, z), ref = self._p, self._reference.position.tolist()
+        ex, ey, ez = x - ref[0], y - ref[1], z - ref[2]
+        return 1.0 - 0.5 * (1.0 - self._Rm[8]) - 0.01 * min(math.sqrt(ex * ex + ey * ey + ez * ez), 50.0)
 
     def airspeed(self) -> float:
         """True airspeed |v - wind| (m/s)."""
-        air = self._vel - self._wind
-        return float(math.sqrt(air @ air))
+        v, wind = self._v, self._wind
+        ax, ay, az = v[0] - wind[0], v[1] - wind[1], v[2] - wind[2]
+        return math.sqrt(ax * ax + ay * ay + az * az)
 
     def angle_of_attack(self) -> float:
         """alpha = atan2(w, u) of the body air velocity (rad)."""
         u, _, w = self._air_body
-        return float(math.atan2(w, u)) if abs(u) + abs(w) > 1e-9 else 0.0
+        return math.atan2(w, u) if abs(u) + abs(w) > 1e-9 else 0.0
 
     def _info(self) -> dict:
-        rotors, pusher = self.hover_rotors, self.pusher
-        return {
-            "time": self.time,
-            "fault": self._faults.current(self.time),
-            "faults": self._faults.as_dicts(),
-            "truth": {
-                "position": self._pos.copy(), "velocity": self._vel.copy(), "attitude": self._quat.copy(),
-                "body_rates": self._rates.copy(), "wind": self._wind.copy(), "airspeed": self.airspeed(),
-                "air_velocity_body": self._air_body.copy(), "angle_of_attack": self.angle_of_attack(),
+        """A fresh info dict (docs/concepts.md, 'The info contract'); without `truth` at info_level "minimal"."""
+        info = {"time": self.time, "fault": self._faults.current(self.time), "faults": self._faults.as_dicts()}
+        if self.info_level == "full":
+            rotors, pusher = self.hover_rotors, self.pusher
+            info["truth"] = {
+                "position": np.array(self._p), "velocity": np.array(self._v), "attitude": np.array(self._q),
+                "body_rates": np.array(self._w), "wind": np.array(self._wind), "airspeed": self.airspeed(),
+                "air_velocity_body": np.array(self._air_body), "angle_of_attack": self.angle_of_attack(),
                 "mass": self.params.mass, "rotor_effectiveness": rotors.effectiveness.copy(),
                 "rotor_speed": rotors.omega.copy(), "skew": self.skew, "surfaces": self.surfaces.copy(),
                 "pusher": {"omega": pusher.omega, "current": pusher.current, "thrust": pusher.thrust,
                            "theta_1": pusher.theta_1, "c_v": pusher.c_v, "I_0": pusher.I_0},
-            },
-            **self._outcome(),
-        }
+            }
+        info.update(self._outcome())
+        return info

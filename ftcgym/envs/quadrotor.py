@@ -26,7 +26,7 @@ from gymnasium import spaces
 
 from ..models.faults import FaultSchedule, parse_faults, resolve
 from ..models.geometry import quat_from_euler
-from ..models.quadrotor import YAW_SIGNS, make_params, rotational_drag_moment
+from ..models.quadrotor import YAW_SIGNS, make_params
 from ..models.rotors import RotorSet
 from ..models.sensors import ACCEL_LIMIT, GYRO_LIMIT, QuadrotorSensors, SensorConfig, SensorLimits
 from .flight_env import RENDER_SIZE, FlightEnv, check_action
@@ -49,9 +49,9 @@ class QuadrotorEnv(FlightEnv):
     def __init__(self, vehicle: str = "bebop2", vehicle_overrides: dict | None = None, wind: dict | None = None,
                  faults=None, task="hover", max_episode_seconds: float = 30.0, physics_hz: float = 500.0,
                  agent_hz: float = 500.0, sensors: dict | None = None, render_mode: str | None = None,
-                 render_size=RENDER_SIZE, **unknown):
+                 render_size=RENDER_SIZE, info_level: str = "full", **unknown):
         self._setup(vehicle, vehicle_overrides, wind, faults, task, max_episode_seconds, physics_hz, agent_hz,
-                    render_mode, render_size, unknown)
+                    render_mode, render_size, unknown, info_level)
         self._sensor_config = SensorConfig.from_overrides(sensors)
         self.observation_space = self._make_observation_space(self.params)
         self._limits = {key: (box.low, box.high) for key, box in self.observation_space.spaces.items()}
@@ -77,9 +77,12 @@ class QuadrotorEnv(FlightEnv):
         high = {key: top[0] for key, (_, top) in self._limits.items()}
         limits = SensorLimits(high["position"], high["velocity"], high["rotor_speed"])
         self.sensors = QuadrotorSensors(self._sensor_config, 4, self.params.hover_omega, 1.0 / self.agent_hz, limits)
-        self._body_drag = np.asarray(self.params.body_drag, dtype=float)
-        self._rot_drag = (np.asarray(self.params.rotational_drag, dtype=float),   # cached for the physics loop
-                          np.asarray(self.params.rotational_drag_quadratic, dtype=float))
+        # cached as floats for the physics loop
+        self._body_drag = tuple(float(d) for d in self.params.body_drag)
+        self._rot_drag = tuple(zip((float(d) for d in self.params.rotational_drag),
+                                   (float(d) for d in self.params.rotational_drag_quadratic)))
+        p = self.params
+        self._omega_low, self._omega_span = float(p.omega_min), float(p.omega_max - p.omega_min)
 
     # ----------------------------------------------------------------------------------------- spaces
     def _make_observation_space(self, params) -> spaces.Dict:
@@ -115,8 +118,8 @@ class QuadrotorEnv(FlightEnv):
         self._start(position, attitude)
         self.rotors.reset(self.params.hover_omega)
         self._apply_faults()
-        self._omega_cmd = np.full(4, self.params.hover_omega)
-        self._wind = self.wind.reset(rng)
+        self._omega_cmd = [self.params.hover_omega] * 4
+        self._wind = tuple(self.wind.reset(rng).tolist())
         self.sensors.reset(rng)
         self._at_rest_readings()
         obs = self._observe()
@@ -124,23 +127,31 @@ class QuadrotorEnv(FlightEnv):
 
     # ----------------------------------------------------------------------------------------- step
     def step(self, action):
-        command = check_action(action, ROTOR_LOW, ROTOR_HIGH, "normalised rotor commands")
-        self._omega_cmd = self.rotors.command_to_omega(command)
+        command = check_action(action, ROTOR_LOW, ROTOR_HIGH, "normalised rotor commands").tolist()
+        low, span = self._omega_low, self._omega_span
+        self._omega_cmd = [low + c * span for c in command]       # `RotorSet.command_to_omega`
         obs, terminated, truncated = self._advance()
         reward = self._reward(command)
         return obs, reward, terminated, truncated, self._info()
 
     def _physics_step(self) -> None:
+        """Rotors, wind, the rotor wrench plus body and rotational drag, on plain floats."""
         dt, rotors = self.dt, self.rotors
-        rotors.step(self._omega_cmd, dt)
-        self._wind = self.wind.step()
-        R = self._R
-        air_body = R.T @ (self._vel - self._wind)
-        force, moment = rotors.wrench(self._rates, air_body)
-        force -= self._body_drag * air_body
-        moment += rotational_drag_moment(*self._rot_drag, self._rates)
-        self.sensors.advance_rotor_phase(rotors.omega, dt)
-        self._integrate(R, force, moment)
+        omega, omega_dot = rotors.advance(self._omega_cmd, dt)
+        wind = self._wind = self.wind.advance()
+        R, v, rates = self._Rm, self._v, self._w
+        dx, dy, dz = v[0] - wind[0], v[1] - wind[1], v[2] - wind[2]
+        air = (R[0] * dx + R[3] * dy + R[6] * dz, R[1] * dx + R[4] * dy + R[7] * dz,
+               R[2] * dx + R[5] * dy + R[8] * dz)              # R^T (v - wind)
+        force, moment = rotors.wrench_floats(omega, omega_dot, rates, air)
+        (bx, by, bz), ((l0, q0), (l1, q1), (l2, q2)) = self._body_drag, self._rot_drag
+        p, q, r = rates
+        force = (force[0] - bx * air[0], force[1] - by * air[1], force[2] - bz * air[2])
+        # `rotational_drag_moment`: -(D1 + D2 |w|) w
+        moment = (moment[0] + -(l0 + q0 * abs(p)) * p, moment[1] + -(l1 + q1 * abs(q)) * q,
+                  moment[2] + -(l2 + q2 * abs(r)) * r)
+        self.sensors.advance_rotor_phase(omega, dt)
+        self._integrate(force, moment)
 
     def _apply_faults(self) -> None:
         """Set the rotor and mass faults in force from `self.time` on (so info at t shows what acts next)."""
@@ -156,36 +167,37 @@ class QuadrotorEnv(FlightEnv):
 
     # ----------------------------------------------------------------------------------------- outputs
     def _observe(self) -> dict:
-        readings = self.sensors.read(self._pos, self._vel, self._quat, self._rates, self._specific_force,
-                                     self.rotors.omega)
+        readings = self.sensors.read(self._p, self._v, self._q, self._w, self._sf, self.rotors.omega.tolist())
         self._faults.apply_to_sensors(self.time, readings)
         return self._with_reference(readings)
 
-    def _reward(self, command: np.ndarray) -> float:
+    def _reward(self, command) -> float:
         if self._crashed:
             return -CRASH_PENALTY
-        e = self._pos - self._reference.position
-        error = math.sqrt(e @ e)
-        return float(1.0 - 0.5 * min(error, 4.0) - 0.5 * (1.0 - self._R[2, 2]) - 0.05 * float(command @ command) / 4)
+        (x, y, z), ref = self._p, self._reference.position.tolist()
+        ex, ey, ez = x - ref[0], y - ref[1], z - ref[2]
+        error = math.sqrt(ex * ex + ey * ey + ez * ez)
+        u0, u1, u2, u3 = command
+        effort = u0 * u0 + u1 * u1 + u2 * u2 + u3 * u3
+        return 1.0 - 0.5 * min(error, 4.0) - 0.5 * (1.0 - self._Rm[8]) - 0.05 * effort / 4
 
     def _info(self) -> dict:
-        """A fresh info dict (docs/concepts.md, 'The info contract')."""
-        rotors = self.rotors
-        airspeed_vec = self._vel - self._wind
-        return {
-            "time": self.time,
-            "fault": self._faults.current(self.time),
-            "faults": self._faults.as_dicts(),
-            "truth": {
-                "position": self._pos.copy(),
-                "velocity": self._vel.copy(),
-                "attitude": self._quat.copy(),
-                "body_rates": self._rates.copy(),
-                "wind": self._wind.copy(),
-                "airspeed": float(np.sqrt(airspeed_vec @ airspeed_vec)),
+        """A fresh info dict (docs/concepts.md, 'The info contract'); without `truth` at info_level "minimal"."""
+        info = {"time": self.time, "fault": self._faults.current(self.time), "faults": self._faults.as_dicts()}
+        if self.info_level == "full":
+            rotors, wind = self.rotors, self._wind
+            v = self._v
+            ax, ay, az = v[0] - wind[0], v[1] - wind[1], v[2] - wind[2]
+            info["truth"] = {
+                "position": np.array(self._p),
+                "velocity": np.array(v),
+                "attitude": np.array(self._q),
+                "body_rates": np.array(self._w),
+                "wind": np.array(wind),
+                "airspeed": math.sqrt(ax * ax + ay * ay + az * az),
                 "mass": self._mass,
                 "rotor_effectiveness": rotors.effectiveness.copy(),
                 "rotor_speed": rotors.omega.copy(),
-            },
-            **self._outcome(),
-        }
+            }
+        info.update(self._outcome())
+        return info

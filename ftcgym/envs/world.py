@@ -16,9 +16,7 @@ import numpy as np
 
 from ..models.constants import GRAVITY
 from ..models.geometry import rotation_matrix
-from .frames import quat_from_ned, quat_to_ned, vec_to_ned
-
-_FLIP_BOTH = np.outer([1.0, -1.0, -1.0], [1.0, -1.0, -1.0])  # R_ned_frd = T R_pb T, elementwise
+from .frames import quat_from_ned, vec_to_ned
 
 
 @contextlib.contextmanager
@@ -104,14 +102,24 @@ class PyBulletWorld:
 
     def state(self):
         """Position (NED), quaternion (FRD->NED, x y z w), rotation matrix (FRD->NED), velocity (NED) and
-        angular velocity (NED); raises FloatingPointError if the physics produced a non-finite state."""
+        angular velocity (NED) as arrays (`read`'s values); raises FloatingPointError if the physics produced a
+        non-finite state."""
+        pos, quat, R, vel, ang = self.read()
+        return np.array(pos), np.array(quat), np.array(R).reshape(3, 3), np.array(vel), np.array(ang)
+
+    def read(self):
+        """The body's state as plain floats, one read per physics step: position (NED, 3-tuple), quaternion
+        (FRD->NED, x y z w), rotation matrix (FRD->NED, row-major 9-tuple), velocity (NED) and angular velocity
+        (NED); raises FloatingPointError if the physics produced a non-finite state. The values are those of
+        `vec_to_ned`, `quat_to_ned` and `T R_pb T` exactly (sign flips only)."""
         c = self.client
-        pos, orn = p.getBasePositionAndOrientation(self.body, physicsClientId=c)
-        vel, ang = p.getBaseVelocity(self.body, physicsClientId=c)
-        if not math.isfinite(sum(pos) + sum(vel) + sum(ang) + sum(orn)):
+        (x, y, z), orn = p.getBasePositionAndOrientation(self.body, physicsClientId=c)
+        (u, v, w), (a, b, g) = p.getBaseVelocity(self.body, physicsClientId=c)
+        if not math.isfinite(x + y + z + u + v + w + a + b + g + orn[0] + orn[1] + orn[2] + orn[3]):
             raise FloatingPointError("physics state became non-finite; please report this as a bug")
-        R = np.array(p.getMatrixFromQuaternion(orn, physicsClientId=c)).reshape(3, 3) * _FLIP_BOTH
-        return vec_to_ned(pos), quat_to_ned(orn), R, vec_to_ned(vel), vec_to_ned(ang)
+        m = p.getMatrixFromQuaternion(orn, physicsClientId=c)
+        return ((x, -y, -z), (orn[0], -orn[1], -orn[2], orn[3]),
+                (m[0], -m[1], -m[2], -m[3], m[4], m[5], -m[6], m[7], m[8]), (u, -v, -w), (a, -b, -g))
 
     def step(self, force_ned, torque_ned, position_ned) -> None:
         """Apply a force at the centre of mass and a torque (world NED), then advance one physics step."""

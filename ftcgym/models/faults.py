@@ -220,11 +220,20 @@ class FaultSchedule:
         ends = [s.time + s.duration for s in self.specs if _ends(s)]
         self._changes = sorted({s.time for s in self.specs} | set(ends))   # times at which info["fault"] changes
         self._current_start, self._current_until = np.inf, -np.inf  # the cached info["fault"] holds in between
+        self._rotor_arrays, self._rotor_from, self._rotor_until = (None, None), np.inf, -np.inf   # `rotor_state`
 
     def rotor_state(self, t: float, effectiveness: np.ndarray, loaded: np.ndarray) -> None:
-        """Write the effectiveness and propeller presence at time t into the given arrays."""
+        """Write the effectiveness and propeller presence at time t into the given arrays.
+
+        Called every physics step, so the arrays are written only when the state may have changed: the
+        rotor faults are constant between onsets once no loss-of-effectiveness ramp is rising (the arrays
+        last written hold their values until the next onset)."""
+        if (self._rotor_arrays[0] is effectiveness and self._rotor_arrays[1] is loaded
+                and self._rotor_from <= t < self._rotor_until):
+            return
         effectiveness[:] = 1.0
         loaded[:] = True
+        rising = False
         for s in self._rotor:
             if t < s.time:
                 continue
@@ -233,8 +242,12 @@ class FaultSchedule:
                 loaded[s.target] = False
             else:
                 lost = s.magnitude if s.rate is None else min(s.rate * (t - s.time), s.magnitude)
+                rising = rising or lost < s.magnitude
                 for i in s.target:
                     effectiveness[i] *= 1.0 - lost
+        self._rotor_arrays = (effectiveness, loaded)
+        self._rotor_from = t
+        self._rotor_until = t if rising else min((s.time for s in self._rotor if s.time > t), default=np.inf)
 
     def added_mass(self, t: float) -> float:
         total = 0.0

@@ -243,6 +243,14 @@ def aero_wrench(params, air_velocity_body, body_rates, skew, surfaces, hover_ome
     1 right, 2 rear, 3 left; pusher_thrust (N, along +x, through the CG) and pusher_torque (N m about +x,
     the reaction on the airframe) come from `PusherMotor`. Returns (force (3,), moment (3,)) arrays.
     """
+    force, moment = aero_wrench_floats(params, air_velocity_body, body_rates, skew, surfaces, hover_omega,
+                                       hover_effectiveness, pusher_thrust, pusher_torque)
+    return np.array(force), np.array(moment)
+
+
+def aero_wrench_floats(params, air_velocity_body, body_rates, skew, surfaces, hover_omega, hover_effectiveness,
+                       pusher_thrust, pusher_torque):
+    """`aero_wrench` returning (force, moment) as lists of 3 floats (the physics loop's form)."""
     vel = (float(air_velocity_body[0]), float(air_velocity_body[1]), float(air_velocity_body[2]))
     rates = (float(body_rates[0]), float(body_rates[1]), float(body_rates[2]))
     aileron, elevator, rudder = (float(s) for s in surfaces)
@@ -258,4 +266,4 @@ def aero_wrench(params, air_velocity_body, body_rates, skew, surfaces, hover_ome
     f_r, m_r = hover_rotor_wrench(params, vel, rates, skew, hover_omega, hover_effectiveness)
     _add(force, f_r)
     _add(moment, m_r)
-    return np.array(force), np.array(moment)
+    return force, moment

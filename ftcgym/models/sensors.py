@@ -12,6 +12,7 @@ Noise is drawn in blocks from the env's generator (one draw per block, not per s
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,6 +23,8 @@ from .constants import GRAVITY
 GYRO_LIMIT = np.deg2rad(2000.0)   # rad/s, MPU-6050 full scale (000 Fig. 5)
 ACCEL_LIMIT = 16.0 * GRAVITY        # m/s^2, +-16 g full scale
 _BLOCK = 512
+_TWO_PI = 2 * np.pi
+_GYRO_LIMIT, _ACCEL_LIMIT = float(GYRO_LIMIT), float(ACCEL_LIMIT)
 # Accepted sensor settings: noise levels and time constants may be 0 (an ideal sensor), rates may not; the
 # upper ends only keep the arithmetic finite (no real sensor comes near them).
 _LEVEL, _RATE = Range(0.0, 1e6), Range(1e-3, 1e6)
@@ -67,11 +70,13 @@ class SensorLimits:
 
 
 class QuadrotorSensors:
-    """IMU, ESC, attitude and position/velocity sensors of a quadrotor."""
+    """IMU, ESC, attitude and position/velocity sensors of a quadrotor (four rotors)."""
 
     #: columns of one noise row: gyro 3, accel 3, attitude 3, position 3, velocity 3, rotor speeds n
     def __init__(self, config: SensorConfig, n_rotors: int, hover_omega: float, dt: float,
                  limits: SensorLimits | None = None):
+        if n_rotors != 4:
+            raise ValueError(f"QuadrotorSensors: four rotors, got {n_rotors}")
         self.config = config
         self.limits = limits or SensorLimits()
         self.n_rotors = n_rotors
@@ -93,42 +98,73 @@ class QuadrotorSensors:
         dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
         self._gyro_vib_dirs = dirs * c.gyro_vibration
         self._accel_vib_dirs = dirs[:, [1, 2, 0]] * c.accel_vibration
-        self._phase = rng.uniform(0.0, 2 * np.pi, self.n_rotors)
-        self._noise = np.empty((0, self._scales.size))
+        self._gyro_vib_rows, self._accel_vib_rows = self._gyro_vib_dirs.tolist(), self._accel_vib_dirs.tolist()
+        self._gyro_bias, self._accel_bias = tuple(self.gyro_bias.tolist()), tuple(self.accel_bias.tolist())
+        self._phase = tuple(rng.uniform(0.0, 2 * np.pi, self.n_rotors).tolist())
+        self._noise = []
         self._row = 0
         self._count = 0
         self._position = None
         self._velocity = None
 
-    def advance_rotor_phase(self, omega: np.ndarray, dt: float) -> None:
+    def advance_rotor_phase(self, omega, dt: float) -> None:
         """Integrate the rotor angles (called every physics step, so vibration is not aliased by substeps)."""
-        self._phase = (self._phase + omega * dt) % (2 * np.pi)
+        p0, p1, p2, p3 = self._phase
+        w0, w1, w2, w3 = omega
+        self._phase = ((p0 + w0 * dt) % _TWO_PI, (p1 + w1 * dt) % _TWO_PI, (p2 + w2 * dt) % _TWO_PI,
+                       (p3 + w3 * dt) % _TWO_PI)
 
-    def _next_noise(self) -> np.ndarray:
+    def _next_noise(self) -> list:
         if self._row >= len(self._noise):
-            self._noise = self._rng.standard_normal((_BLOCK, self._scales.size)) * self._scales
+            self._noise = (self._rng.standard_normal((_BLOCK, self._scales.size)) * self._scales).tolist()
             self._row = 0
         row = self._noise[self._row]
         self._row += 1
         return row
 
     def read(self, position, velocity, quat, body_rates, specific_force, omega) -> dict:
-        """One sample of every sensor, from the true state (NED / FRD)."""
+        """One sample of every sensor, from the true state (NED / FRD; arrays or sequences of floats): a dict of
+        fresh arrays."""
         n = self._next_noise()
-        vib = (omega * omega / self._omega_ref2) * np.sin(self._phase)
-        gyro = body_rates + self.gyro_bias + n[0:3] + vib @ self._gyro_vib_dirs
-        accel = specific_force + self.accel_bias + n[3:6] + vib @ self._accel_vib_dirs
+        ref2, (p0, p1, p2, p3) = self._omega_ref2, self._phase
+        w0, w1, w2, w3 = omega
+        v0, v1, v2, v3 = ((w0 * w0 / ref2) * math.sin(p0), (w1 * w1 / ref2) * math.sin(p1),
+                          (w2 * w2 / ref2) * math.sin(p2), (w3 * w3 / ref2) * math.sin(p3))
+        # vib @ dirs: the pairings are those of BLAS's kernels for these layouts (gyro directions row-major,
+        # accel directions column-major), so the readings keep their bits from the numpy version.
+        (g00, g01, g02), (g10, g11, g12), (g20, g21, g22), (g30, g31, g32) = self._gyro_vib_rows
+        gv0 = (v0 * g00 + v1 * g10) + (v2 * g20 + v3 * g30)
+        gv1 = (v0 * g01 + v1 * g11) + (v2 * g21 + v3 * g31)
+        gv2 = (v0 * g02 + v1 * g12) + (v2 * g22 + v3 * g32)
+        (a00, a01, a02), (a10, a11, a12), (a20, a21, a22), (a30, a31, a32) = self._accel_vib_rows
+        av0 = (v0 * a00 + v2 * a20) + (v1 * a10 + v3 * a30)
+        av1 = (v0 * a01 + v2 * a21) + (v1 * a11 + v3 * a31)
+        av2 = (v0 * a02 + v2 * a22) + (v1 * a12 + v3 * a32)
+        gb0, gb1, gb2 = self._gyro_bias
+        ab0, ab1, ab2 = self._accel_bias
+        g, a = _GYRO_LIMIT, _ACCEL_LIMIT
+        gyro = np.array((min(max(body_rates[0] + gb0 + n[0] + gv0, -g), g),
+                         min(max(body_rates[1] + gb1 + n[1] + gv1, -g), g),
+                         min(max(body_rates[2] + gb2 + n[2] + gv2, -g), g)))
+        accel = np.array((min(max(specific_force[0] + ab0 + n[3] + av0, -a), a),
+                          min(max(specific_force[1] + ab1 + n[4] + av1, -a), a),
+                          min(max(specific_force[2] + ab2 + n[5] + av2, -a), a)))
         if self._count % self._hold_steps == 0:
-            self._position = _saturate(position + n[9:12], self.limits.position)
-            self._velocity = _saturate(velocity + n[12:15], self.limits.velocity)
+            p, v = self.limits.position, self.limits.velocity
+            self._position = (min(max(position[0] + n[9], -p), p), min(max(position[1] + n[10], -p), p),
+                              min(max(position[2] + n[11], -p), p))
+            self._velocity = (min(max(velocity[0] + n[12], -v), v), min(max(velocity[1] + n[13], -v), v),
+                              min(max(velocity[2] + n[14], -v), v))
         self._count += 1
+        top = self.limits.rotor_speed
         return {
-            "gyro": np.minimum(np.maximum(gyro, -GYRO_LIMIT), GYRO_LIMIT),
-            "accel": np.minimum(np.maximum(accel, -ACCEL_LIMIT), ACCEL_LIMIT),
-            "attitude": _perturb(quat, n[6:9]),
-            "position": self._position.copy(),
-            "velocity": self._velocity.copy(),
-            "rotor_speed": np.minimum(np.maximum(omega + n[15:], 0.0), self.limits.rotor_speed),
+            "gyro": gyro,
+            "accel": accel,
+            "attitude": np.array(_perturb_floats(quat, n[6], n[7], n[8])),
+            "position": np.array(self._position),
+            "velocity": np.array(self._velocity),
+            "rotor_speed": np.array((min(max(w0 + n[15], 0.0), top), min(max(w1 + n[16], 0.0), top),
+                                     min(max(w2 + n[17], 0.0), top), min(max(w3 + n[18], 0.0), top))),
         }
 
 
@@ -138,15 +174,18 @@ def _saturate(x: np.ndarray, limit: float) -> np.ndarray:
 
 def _perturb(q, half_angles) -> np.ndarray:
     """q (x) [half_angles, 1], normalised: q rotated by a small body-frame rotation."""
+    return np.array(_perturb_floats(q, *half_angles))
+
+
+def _perturb_floats(q, a, b, c) -> tuple:
+    """`_perturb` on plain floats."""
     x, y, z, w = q
-    a, b, c = half_angles
-    out = np.array((
-        w * a + x + y * c - z * b,
-        w * b - x * c + y + z * a,
-        w * c + x * b - y * a + z,
-        w - x * a - y * b - z * c,
-    ))
-    return out / np.sqrt(out @ out)
+    out = (w * a + x + y * c - z * b,
+           w * b - x * c + y + z * a,
+           w * c + x * b - y * a + z,
+           w - x * a - y * b - z * c)
+    norm = math.sqrt(out[0] * out[0] + out[1] * out[1] + out[2] * out[2] + out[3] * out[3])
+    return out[0] / norm, out[1] / norm, out[2] / norm, out[3] / norm
 
 
 @dataclass(frozen=True)
@@ -202,7 +241,7 @@ class QuadPlaneSensors:
         n = self._rng.standard_normal(7) * self._scales
         self._pitot += self._pitot_alpha * (max(airspeed_x, 0.0) - self._pitot)   # a pitot reads forward flow only
         if self._count % self._gnss_steps == 0:
-            self._gnss = _saturate(velocity + n[1:4], self.limits.velocity)
+            self._gnss = _saturate(np.asarray(velocity) + n[1:4], self.limits.velocity)
         self._count += 1
         lim = self.limits
         return {

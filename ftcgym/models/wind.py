@@ -155,6 +155,7 @@ class DrydenWind:
         self._calm = not np.any(self._sigmas > 0.0)
         self._rng = None
         self._velocity = self._mean.copy()
+        self._mean_tuple = tuple(self._mean.tolist())
         if not self._calm:
             self._build_filter()
 
@@ -205,18 +206,22 @@ class DrydenWind:
 
     def step(self) -> np.ndarray:
         """Advance by dt; return the wind velocity (3,) NED m/s as a new array."""
+        return np.array(self.advance())
+
+    def advance(self) -> tuple:
+        """`step` returning the wind as a tuple of 3 floats (the physics loop's form)."""
         if self._rng is None:
             raise RuntimeError("DrydenWind.step() called before reset(rng)")
         if self._calm:
-            return self._mean.copy()
+            return self._mean_tuple
         if self._index == len(self._noise):
             self._refill()
-        z = self._transition @ self._state
+        z = np.dot(self._transition, self._state)
         z += self._noise[self._index]
         self._index += 1
         self._state = z[:5]
         self._velocity = z[5:]
-        return self._velocity.copy()  # the caller may modify it freely
+        return tuple(z[5:].tolist())
 
     @property
     def velocity(self) -> np.ndarray:

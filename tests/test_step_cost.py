@@ -1,0 +1,62 @@
+"""Issue 39's lean physics step: seeded trajectories pinned to the values of the numpy-array step it replaced,
+and `info_level`."""
+import gymnasium as gym
+import numpy as np
+import pytest
+from conftest import LIGHT_WIND
+
+from ftcgym.agents import make_policy
+
+# Recorded with the array-based step (commit 12c0590) on the development machine; the plain-float step gives the
+# same bits there. The tolerance leaves room for another BLAS kernel's rounding elsewhere.
+QUADROTOR_PIN = [0.2392849878222523, 0.07259869339980213, -4.709252383509034, 0.011114537794929588,
+                 -0.053124941964070284, -0.022886464496208403, 0.019426667108255448, -0.03240346530503587,
+                 -0.05318511540817684, 0.5285291190814626, -0.8992588592837167, -9.799871223484315, 0.7889762390082443]
+QUADPLANE_PIN = [-0.08204174161989751, 0.07320263418852421, -16.884383921027712, -0.09152840845269311,
+                 0.020613431767862407, 0.01319697992625984, 5.021673435113622, -0.08099728264481847,
+                 0.02048798515131426, 0.00019249129262802374, 0.8684521848416564]
+
+
+def _fly(env, policy_name, steps=1000):
+    obs, info = env.reset(seed=11)
+    policy = make_policy(policy_name, env)
+    policy.reset(obs, info)
+    for _ in range(steps):
+        obs, reward, _, _, info = env.step(policy.act(obs, info))
+    return obs, reward, info
+
+
+def test_quadrotor_trajectory_is_pinned():
+    env = gym.make("ftcgym/Quadrotor-v0", wind=LIGHT_WIND, max_episode_seconds=60,
+                   faults=[{"kind": "loe", "target": 1, "time": 0.5, "magnitude": 0.3}])
+    obs, reward, info = _fly(env, "nominal")
+    t = info["truth"]
+    got = [*t["position"], *t["body_rates"], *obs["gyro"], *obs["accel"], reward]
+    np.testing.assert_allclose(got, QUADROTOR_PIN, rtol=1e-9, atol=1e-12)
+
+
+def test_quadplane_trajectory_is_pinned():
+    env = gym.make("ftcgym/QuadPlane-v0", wind={"mean": [-3.0, 4.0, 0.0], "turbulence": "light"})
+    obs, reward, info = _fly(env, "autopilot")
+    t = info["truth"]
+    got = [*t["position"], *t["body_rates"], t["airspeed"], *obs["gyro"], reward]
+    np.testing.assert_allclose(got, QUADPLANE_PIN, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("env_id", ["ftcgym/Quadrotor-v0", "ftcgym/QuadPlane-v0"])
+def test_minimal_info_omits_only_truth_and_leaves_the_flight_unchanged(env_id):
+    full, minimal = gym.make(env_id, wind=LIGHT_WIND), gym.make(env_id, wind=LIGHT_WIND, info_level="minimal")
+    for env in (full, minimal):
+        env.reset(seed=3)
+    action = full.action_space.sample()
+    for _ in range(20):
+        obs_f, r_f, _, _, info_f = full.step(action)
+        obs_m, r_m, _, _, info_m = minimal.step(action)
+    assert "truth" in info_f and "truth" not in info_m
+    assert set(info_f) - set(info_m) == {"truth"}
+    assert r_f == r_m and all(np.array_equal(obs_f[k], obs_m[k]) for k in obs_f)
+
+
+def test_info_level_is_validated():
+    with pytest.raises(ValueError, match="info_level"):
+        gym.make("ftcgym/Quadrotor-v0", info_level="none")
