@@ -28,8 +28,16 @@ from ftcgym.fdd.logs import (
     read_log,
     read_npz,
 )
-from ftcgym.fdd.recording import RecordingWrapper, _write_csv
-from ftcgym.fdd.replay import ROTOR_SIGNS, identify_effectiveness, make_detector, replay
+from ftcgym.fdd.recording import RecordingWrapper, _write_csv, _write_npz
+from ftcgym.fdd.replay import (
+    IDENTIFICATION_RULE,
+    ROTOR_SIGNS,
+    identification,
+    identification_window,
+    identify_effectiveness,
+    make_detector,
+    replay,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 RFLYMAD = next((p for p in (REPO / "shared", REPO.parent / "shared") if (p / "data" / "rflymad").is_dir()),
@@ -177,9 +185,19 @@ def test_replay_reports_every_rising_edge_of_the_alarm_in_log_time():
     detector = ToggleDetector([(5.2, 5.3), (5.505, 5.6)])
     result = replay(log, detector)
     assert detector.updates == 100
-    assert result == {"detector": "toggle", "alarms": [{"time": pytest.approx(5.2), "target": 1, "rotor": 1},
-                                                       {"time": pytest.approx(5.51), "target": 1, "rotor": 1}],
-                      "final_estimate": [0.0]}
+    assert result == {"detector": "toggle", "identification": None,
+                      "alarms": [{"time": pytest.approx(5.2), "target": 1, "rotor": 1},
+                                 {"time": pytest.approx(5.51), "target": 1, "rotor": 1}],
+                      "estimate_at_alarm": [1.0], "final_estimate": [0.0], "logged_fault": None}
+
+
+def test_replay_reports_the_estimate_at_the_first_alarm_and_passes_the_window_and_ground_truth_through():
+    time = np.arange(100) * 0.01
+    log = FlightLog(time, {"gyro": np.zeros((100, 3))}, FTCGYM_ROTOR_ORDER, fault_time=0.5, fault_target=1)
+    window = {"start": 0.1, "end": 0.3, "rule": "given (--identify)"}
+    result = replay(log, ToggleDetector([]), window)
+    assert (result["alarms"], result["estimate_at_alarm"]) == ([], None)
+    assert result["identification"] == window and result["logged_fault"] == {"time": 0.5, "target": 1}
 
 
 @needs_rflymad
@@ -191,6 +209,106 @@ def test_loe_kalman_on_rflymad_alarms_on_motor_0_soon_after_the_fault_and_never_
     alarm = result["alarms"][0]
     assert alarm["target"] == 0
     assert 0.0 <= alarm["time"] - log.fault_time <= 0.15
+
+
+# ----------------------------------------------------------------------------------------- identification window
+
+def flight(wobble=(3.0, 9.0), seconds=30.0, rate=100.0, seed=0) -> FlightLog:
+    """A PX4-order quad: on the ground to 2 s, climbs 1 m/s to 10 m, then hovers. Inside `wobble` its rates
+    oscillate at 0.6 rad/s (> 20 deg/s: not steady); otherwise small noise, a_z = -g."""
+    rng = np.random.default_rng(seed)
+    time = np.arange(int(seconds * rate)) / rate
+    n = len(time)
+    z = -np.clip(time - 2.0, 0.0, 10.0)
+    gyro = rng.normal(0.0, 0.01, (n, 3))
+    shaking = (time >= wobble[0]) & (time < wobble[1])
+    gyro[shaking, 0] += 0.6 * np.sin(2 * np.pi * 0.5 * time[shaking]) + 0.6 * np.sign(np.sin(2 * np.pi * 0.5 *
+                                                                                               time[shaking]))
+    accel = np.column_stack([np.zeros(n), np.zeros(n), -9.81 + rng.normal(0.0, 0.05, n)])
+    position = np.column_stack([np.zeros(n), np.zeros(n), z])
+    readings = {"gyro": gyro, "accel": accel, "rotor_speed": np.full((n, 4), 400.0), "position": position}
+    return FlightLog(time, readings, PX4_QUAD_X_ORDER, source="flight")
+
+
+def test_the_window_is_the_first_5_s_of_steady_flight_from_3_s_after_take_off():
+    # take-off (1 m up) at 3 s, settled from 6 s; the rates wobble until 9 s: the window is in the hover after
+    start, end = identification_window(flight())
+    assert start == pytest.approx(9.0) and end == pytest.approx(14.0, abs=0.011)
+    # no wobble: from take-off + 3 s, in the climb (steady: unaccelerated)
+    assert identification_window(flight(wobble=(0.0, 0.0))) == pytest.approx((6.0, 11.0), abs=0.011)
+
+
+def test_the_window_never_reads_the_logged_fault():
+    log = flight()
+    before = identification_window(log)
+    log.fault_time, log.fault_target = 10.0, 0      # even a fault inside the window: the log alone decides
+    assert identification_window(log) == before
+    assert identification(log) == {"start": before[0], "end": before[1], "rule": IDENTIFICATION_RULE}
+
+
+def test_a_flight_that_never_settles_or_never_climbs_has_no_window():
+    with pytest.raises(LogError, match=r"flight: the flight never settles: no 5 s of steady flight .* --identify"):
+        identification_window(flight(wobble=(0.0, 30.0)))
+    grounded = flight()
+    grounded.readings["position"][:] = 0.0
+    with pytest.raises(LogError, match="never climbs 1.0 m"):
+        identification_window(grounded)
+
+
+def test_a_given_window_is_checked_against_the_log():
+    log = flight()
+    assert identification(log, (12.0, 20.0)) == {"start": 12.0, "end": 20.0, "rule": "given (--identify)"}
+    with pytest.raises(LogError, match=r"identification window 25:40 s is outside the log \(0.00-29.99 s\)"):
+        identification(log, (25.0, 40.0))
+    with pytest.raises(LogError, match="START < END"):
+        identification(log, (5.0, 5.0))
+
+
+def test_an_ftcgym_recording_is_not_identified_unless_a_window_is_given():
+    log = flight()
+    log.actuator_order = FTCGYM_ROTOR_ORDER
+    assert identification(log) is None
+    assert identification(log, (6.0, 11.0))["rule"] == "given (--identify)"
+
+
+@pytest.mark.parametrize("text", ["3:8", "0:0.5", " 1.5 : 2"])
+def test_identify_option_parses_start_end(text):
+    from ftcgym.cli import build_parser
+    args = build_parser().parse_args(["replay", "log.ulg", "--detector", "loe_kalman", "--identify", text])
+    assert args.identify == tuple(float(t) for t in text.split(":"))
+
+
+@pytest.mark.parametrize("text", ["8:3", "3:3", "-1:2", "3", "3:4:5", "a:b", "nan:4", "1:inf", ""])
+def test_identify_option_refuses_what_is_not_a_window(text, capsys):
+    from ftcgym.cli import build_parser
+    with pytest.raises(SystemExit) as exit_:
+        build_parser().parse_args(["replay", "log.ulg", "--detector", "loe_kalman", f"--identify={text}"])
+    assert exit_.value.code == 2
+    assert "--identify: expected START:END in seconds" in capsys.readouterr().err
+
+
+def test_cli_exits_2_with_one_line_for_a_flight_without_a_window(tmp_path, capsys):
+    from ftcgym.fdd.logs import read_npz
+    path = tmp_path / "shaky.npz"
+    log = flight(wobble=(0.0, 30.0))
+    _write_npz(path, log.time, log.readings, np.full((len(log), 4), np.nan), {"actuator_order": PX4_QUAD_X_ORDER})
+    assert read_npz(path).actuator_order == PX4_QUAD_X_ORDER
+    status, lines = replay_in_process(path, capsys)
+    assert status == 2 and len(lines) == 1 and lines[0].startswith(f"ftcgym replay: {path}: the flight never settles")
+    from ftcgym.cli import main
+    assert main(["replay", str(path), "--detector", "loe_kalman", "--identify", "40:50"]) == 2
+    assert "identification window 40:50 s is outside the log" in capsys.readouterr().err
+    assert main(["replay", str(path), "--detector", "loe_kalman", "--identify", "3:8", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["identification"] == {"start": 3.0, "end": 8.0, "rule": "given (--identify)"}
+
+
+def test_a_detector_that_cannot_replay_says_why_in_one_line(recording, capsys):
+    from ftcgym.cli import main
+    assert main(["replay", str(recording[0]), "--detector", "aekf"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert err.startswith("ftcgym replay: detector 'aekf' cannot replay a log: its model needs the vehicle's mass")
 
 
 # ----------------------------------------------------------------------------------------- recordings
@@ -271,8 +389,12 @@ def test_cli_json_is_exactly_one_object_with_the_replay_fields(recording):
     done = run_cli("replay", path, "--detector", "loe_kalman", "--json")
     assert done.returncode == 0, done.stderr
     result = json.loads(done.stdout)
-    assert set(result) == {"detector", "alarms", "final_estimate"}
+    assert set(result) == {"detector", "identification", "alarms", "estimate_at_alarm", "final_estimate",
+                           "logged_fault"}
     assert result["detector"] == "loe_kalman"
+    assert result["identification"] is None             # an ftcgym recording: the vehicle's own G
+    assert result["logged_fault"] == {"time": 1.0, "target": 2}
+    assert len(result["estimate_at_alarm"]) == 4 and result["estimate_at_alarm"][2] < 0.25
     assert [set(alarm) for alarm in result["alarms"]] == [{"time", "target", "rotor"}]
     assert result["alarms"][0]["rotor"] == result["alarms"][0]["target"]       # an ftcgym recording: same order
     assert result["alarms"][0]["time"] == pytest.approx(info["fdd"]["loe_kalman"]["alarm_time"])
@@ -288,6 +410,12 @@ def test_cli_replays_a_ulog(ulogs):
     assert result["alarms"][0]["target"] == 0
     assert result["alarms"][0]["rotor"] == 1          # PX4 output 0 is the front-right rotor, ftcgym index 1
     assert 0.0 <= result["alarms"][0]["time"] - ulogs[HIL].fault_time <= 0.15
+    window = result["identification"]
+    assert window["rule"] == IDENTIFICATION_RULE
+    assert window["end"] - window["start"] == pytest.approx(5.0, abs=0.01)
+    assert window["start"] >= 3.79 + 3.0 and window["end"] < ulogs[HIL].fault_time   # after take-off, before the fault
+    assert result["logged_fault"] == {"time": pytest.approx(ulogs[HIL].fault_time), "target": 0}
+    assert result["estimate_at_alarm"][0] < 0.25
 
 
 def test_cli_table_and_errors(recording, capsys):
@@ -296,6 +424,7 @@ def test_cli_table_and_errors(recording, capsys):
     assert main(["replay", str(path), "--detector", "loe_kalman"]) == 0
     table = capsys.readouterr().out
     assert "alarm time" in table and "logged fault: rotor 2 at 1.000 s" in table
+    assert "estimate at first alarm: " in table and "final estimate (log end, after any crash): " in table
     assert main(["replay", "no_such_log.ulg", "--detector", "loe_kalman"]) == 2
     missing = capsys.readouterr()
     assert missing.out == "" and "no_such_log.ulg" in missing.err

@@ -16,6 +16,9 @@ def add_parser(subparsers) -> None:
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     parser.add_argument("--rate", type=positive_rate, default=250.0, metavar="HZ",
                         help="rate a ULog is resampled to (default: 250); recordings keep their own")
+    parser.add_argument("--identify", type=time_window, default=None, metavar="START:END",
+                        help="window (s from the log's start) to identify the detector's model on, instead of the "
+                             "automatic one (the first 5 s of steady flight from 3 s after take-off)")
     parser.set_defaults(run=run)
 
 
@@ -31,6 +34,19 @@ def positive_rate(text: str) -> float:
     if not (math.isfinite(rate) and 0 < rate <= MAX_RATE):
         raise argparse.ArgumentTypeError(f"expected a number of Hz in (0, {MAX_RATE:g}], got {text!r}")
     return rate
+
+
+def time_window(text: str) -> tuple[float, float]:
+    """START:END, seconds from the log's start: two finite numbers, 0 <= START < END."""
+    parts = text.split(":")
+    try:
+        start, end = (float(part) for part in parts) if len(parts) == 2 else (math.nan, math.nan)
+    except ValueError:
+        start = end = math.nan
+    if not (math.isfinite(start) and math.isfinite(end) and 0 <= start < end):
+        raise argparse.ArgumentTypeError(f"expected START:END in seconds from the log's start, 0 <= START < END, "
+                                         f"got {text!r}")
+    return start, end
 
 
 def run(args, argv: list[str]) -> int:
