@@ -47,6 +47,9 @@ def main(argv: list[str] | None = None) -> int:
     from ftcgym.benchmark.outputs import FolderInUse  # small modules: no simulator loads here
     try:
         return args.run(args, argv) or 0
+    except BrokenPipeError:     # the reader went away (`| head`): nothing to report; Python's docs' recipe
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141              # 128 + SIGPIPE, as a shell reports it
     except (FolderInUse, EpisodesFailed, *USER_ERRORS) as error:
         if os.environ.get("FTCGYM_TRACEBACK"):
             raise
