@@ -1,5 +1,5 @@
 """Every input a user passes is checked at make or reset, with an error naming the field, the value and what
-is accepted; a failed or dropped env holds no PyBullet client; a closed env says so (issue 35's reproducers)."""
+is accepted; a failed or dropped env holds no PyBullet client; a closed env says so."""
 import contextlib
 import gc
 import os

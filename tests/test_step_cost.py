@@ -1,4 +1,4 @@
-"""Issue 39's lean physics step: seeded trajectories pinned to the values of the numpy-array step it replaced,
+"""The lean physics step: seeded trajectories pinned to the values of the numpy-array step it replaced,
 and `info_level`."""
 import gymnasium as gym
 import numpy as np
