@@ -25,8 +25,8 @@ POLICIES = Registry("policy", "ftcgym.policies", {
     "nominal": Entry(f"{_HERE}:nominal",
                      "cascaded PID position/attitude/rate controller with model-based mixer; fault-unaware"),
     "ftc-spin": Entry(f"{_HERE}:ftc_spin",
-                      "nominal until the loe_kalman alarm, then relaxed-hover spin recovery (scheduled LQR of the "
-                      "primary axis) without the isolated rotor; needs the loe_kalman detector"),
+                      "nominal until the loe_kalman (or loe_cusum) alarm, then relaxed-hover spin recovery "
+                      "(scheduled LQR of the primary axis) without the isolated rotor; needs one of those detectors"),
     "oracle-spin": Entry(f"{_HERE}:oracle_spin",
                          "upper bound: spin recovery from the true fault onset (benchmark oracle info), not flyable"),
     "autopilot": Entry(f"{_HERE}:autopilot",
@@ -98,14 +98,32 @@ def nominal(env) -> NominalController:
     return NominalController(base.params, base.agent_hz)
 
 
+#: rotor-loss detectors the spin policies can act on, in order of preference when an env carries several
+ROTOR_LOSS_DETECTORS = ("loe_kalman", "loe_cusum")
+
+
+def rotor_loss_detector(env) -> str:
+    """The rotor-loss detector `env` is wrapped with (ROTOR_LOSS_DETECTORS, the first found); "loe_kalman" when
+    none is (the policy then says it needs it)."""
+    import gymnasium as gym
+
+    from ..fdd.wrapper import DetectorWrapper
+    found = set()
+    while isinstance(env, gym.Wrapper):
+        if isinstance(env, DetectorWrapper):
+            found.add(env.detector.name)
+        env = env.env
+    return next((name for name in ROTOR_LOSS_DETECTORS if name in found), ROTOR_LOSS_DETECTORS[0])
+
+
 def ftc_spin(env) -> SpinAfterAlarmPolicy:
     base = _quadrotor(env, "ftc-spin")
-    return SpinAfterAlarmPolicy(base.params, base.agent_hz)
+    return SpinAfterAlarmPolicy(base.params, base.agent_hz, detector=rotor_loss_detector(env))
 
 
 def oracle_spin(env) -> OracleSpinPolicy:
     base = _quadrotor(env, "oracle-spin")
-    return OracleSpinPolicy(base.params, base.agent_hz)
+    return OracleSpinPolicy(base.params, base.agent_hz, detector=rotor_loss_detector(env))
 
 
 def autopilot(env) -> AutopilotPolicy:

@@ -10,11 +10,15 @@ from .spin_recovery import SpinRecoveryController, SpinRecoveryGains
 
 class SpinAfterAlarmPolicy:
     """`ftc-spin`: the nominal controller until the `loe_kalman` detector alarms, then spin recovery without
-    the rotor it isolated. The env must be wrapped with the detector (the rotor-loss scenarios are)."""
+    the rotor it isolated. The env must be wrapped with the detector (the rotor-loss scenarios are). `detector`
+    names another detector whose `info["fdd"]` status it reads instead (`loe_cusum`, issue 37)."""
 
     detector = "loe_kalman"
 
-    def __init__(self, params: QuadrotorParams, agent_hz: float, gains: SpinRecoveryGains | None = None):
+    def __init__(self, params: QuadrotorParams, agent_hz: float, gains: SpinRecoveryGains | None = None,
+                 detector: str | None = None):
+        if detector is not None:
+            self.detector = detector
         self.nominal = NominalController(params, agent_hz)
         self.spin = SpinRecoveryController(params, agent_hz, gains)
 

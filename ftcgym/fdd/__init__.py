@@ -14,6 +14,7 @@ import inspect
 import gymnasium as gym
 
 from ftcgym.fdd.base import AlarmLatch, Detector
+from ftcgym.fdd.loe_cusum import LoeCusumDetector, loe_cusum_wrapper
 from ftcgym.fdd.loe_kalman import LoeKalmanDetector, loe_kalman_wrapper
 from ftcgym.fdd.metrics import (
     detection_delay,
@@ -29,6 +30,9 @@ DETECTORS = Registry("detector", "ftcgym.detectors", {
     "loe_kalman": Entry("ftcgym.fdd.loe_kalman:loe_kalman_wrapper",
                         "loss-of-effectiveness Kalman estimator and hypothesis test (Strack van Schijndel et al. "
                         "2023, 000)"),
+    "loe_cusum": Entry("ftcgym.fdd.loe_cusum:loe_cusum_wrapper",
+                       "fast rotor loss: per-rotor CUSUM on 000's angular-acceleration residual, confirmed by the "
+                       "motor-speed residual (Page 1954; issue 37)"),
     "aekf": Entry("ftcgym.fdd.aekf:aekf_wrapper",
                   "augmented EKF of rotor loss of effectiveness with an innovation test (Lu et al., 002)"),
     "iv_change": Entry("ftcgym.fdd.iv_change:iv_change_wrapper",
@@ -76,7 +80,9 @@ __all__ = [
     "DETECTORS",
     "Detector",
     "DetectorWrapper",
+    "LoeCusumDetector",
     "LoeKalmanDetector",
+    "loe_cusum_wrapper",
     "loe_kalman_wrapper",
     "published_detector",
     "wrap_with_detector",
