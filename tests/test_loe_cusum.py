@@ -1,4 +1,4 @@
-"""loe_cusum (issue 37): the CUSUM on 000's angular-acceleration residual with the motor-speed confirmation."""
+"""loe_cusum: the CUSUM on 000's angular-acceleration residual with the motor-speed confirmation."""
 import numpy as np
 import pytest
 from conftest import LIGHT_WIND, make_env
@@ -103,7 +103,7 @@ def test_registered_and_spin_policies_read_it():
 
 @pytest.mark.parametrize("seed, rotor", [(31, 0), (32, 3)])
 def test_rotor_loss_is_detected_and_isolated_in_flight(seed, rotor):
-    """The flights of test_loe_kalman's 000-bounds test: isolated, within 30 ms (issue 37's median bound)."""
+    """The flights of test_loe_kalman's 000-bounds test: isolated, within 30 ms."""
     env = loe_cusum_wrapper(make_env(faults=[{"kind": "rotor_loss", "target": rotor, "time": 3.0}], task="hover",
                                      wind=LIGHT_WIND, max_episode_seconds=3.3))
     obs, info = env.reset(seed=seed)

@@ -11,7 +11,7 @@ from .spin_recovery import SpinRecoveryController, SpinRecoveryGains
 class SpinAfterAlarmPolicy:
     """`ftc-spin`: the nominal controller until the `loe_kalman` detector alarms, then spin recovery without
     the rotor it isolated. The env must be wrapped with the detector (the rotor-loss scenarios are). `detector`
-    names another detector whose `info["fdd"]` status it reads instead (`loe_cusum`, issue 37)."""
+    names another detector whose `info["fdd"]` status it reads instead (`loe_cusum`)."""
 
     detector = "loe_kalman"
 

@@ -32,7 +32,7 @@ DETECTORS = Registry("detector", "ftcgym.detectors", {
                         "2023, 000)"),
     "loe_cusum": Entry("ftcgym.fdd.loe_cusum:loe_cusum_wrapper",
                        "fast rotor loss: per-rotor CUSUM on 000's angular-acceleration residual, confirmed by the "
-                       "motor-speed residual (Page 1954; issue 37)"),
+                       "motor-speed residual (Page 1954)"),
     "aekf": Entry("ftcgym.fdd.aekf:aekf_wrapper",
                   "augmented EKF of rotor loss of effectiveness with an innovation test (Lu et al., 002)"),
     "iv_change": Entry("ftcgym.fdd.iv_change:iv_change_wrapper",

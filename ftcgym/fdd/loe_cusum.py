@@ -1,5 +1,5 @@
 """Fast rotor-loss detection: a CUSUM per rotor on the angular-acceleration residual of 000's effectiveness model,
-confirmed by the motor-speed residual (issue 37).
+confirmed by the motor-speed residual.
 
 `loe_kalman` (000 = Strack van Schijndel, Sun, de Visser, ICUAS 2023) estimates the effectiveness factors k with
 a Kalman filter behind an 8 Hz low-pass and alarms on P(k_i < k_thres); its delay (median 44 ms on `bebop2`) is
