@@ -41,7 +41,7 @@ import numpy as np
 from ..models.constants import GRAVITY
 from ..settings import updated
 from .base import AlarmLatch, Biquad
-from .loe_kalman import SIGNS_000, TABLE_II, lowpass_coefficients
+from .loe_kalman import TABLE_II, effectiveness_matrix, lowpass_coefficients
 
 CUSUM_CEILING = 1e6  # the published statistics are clipped here (they are unbounded after a loss)
 
@@ -84,10 +84,7 @@ class LoeCusumDetector:
         if not (np.isfinite(dt) and dt > 0):
             raise ValueError(f"dt: must be a finite number > 0, got {dt!r}")
         self.dt = float(dt)
-        B = np.diag(np.asarray(s.G, dtype=float)) @ SIGNS_000 if s.effectiveness_matrix is None else \
-            np.asarray(s.effectiveness_matrix, dtype=float)
-        if B.shape != (3, 4) or not np.all(np.isfinite(B)):
-            raise ValueError(f"effectiveness_matrix: must be a finite (3, 4) array, got shape {B.shape}")
+        B = effectiveness_matrix(s)
         sigma = np.asarray(s.residual_sigma, dtype=float)
         if sigma.shape != (3,) or not np.all(np.isfinite(sigma) & (sigma > 0)):
             raise ValueError(f"residual_sigma: must be 3 finite numbers > 0, got {s.residual_sigma!r}")

@@ -90,6 +90,17 @@ class LoeKalmanSettings:
     takeoff_fraction: float = 0.5      # detection starts once the rotors carry this share of the weight (Sec. V-D)
     initial_variance: float = 0.01     # P_0 = this times I
 
+
+def effectiveness_matrix(settings) -> np.ndarray:
+    """B = diag(G) S of 000 eq. (8)-(9) from `settings.G`, or `settings.effectiveness_matrix` when given;
+    ValueError unless a finite (3, 4) array."""
+    if settings.effectiveness_matrix is None:
+        return np.diag(np.asarray(settings.G, dtype=float)) @ SIGNS_000
+    B = np.asarray(settings.effectiveness_matrix, dtype=float)
+    if B.shape != (3, 4) or not np.all(np.isfinite(B)):
+        raise ValueError(f"effectiveness_matrix: must be a finite (3, 4) array, got shape {B.shape}")
+    return B
+
 class LoeKalmanDetector:
     """000's LOE detector. Readings: `gyro` (rad/s, FRD), `accel` (specific force, m/s^2), `rotor_speed` (rad/s).
 
@@ -106,11 +117,7 @@ class LoeKalmanDetector:
         if not (np.isfinite(dt) and dt > 0):
             raise ValueError(f"dt: must be a finite number > 0, got {dt!r}")
         self.dt = float(dt)
-        B = np.diag(np.asarray(s.G, dtype=float)) @ SIGNS_000 if s.effectiveness_matrix is None else \
-            np.asarray(s.effectiveness_matrix, dtype=float)
-        if B.shape != (3, 4) or not np.all(np.isfinite(B)):
-            raise ValueError(f"effectiveness_matrix: must be a finite (3, 4) array, got shape {B.shape}")
-        self.B = B
+        self.B = effectiveness_matrix(s)
         self.Q, self.R = s.Q * np.eye(4), s.R * np.eye(3)
         self.k_threshold, self.p_fail_threshold = s.k_threshold, s.p_fail_threshold
         self.k_bounds = s.k_bounds
