@@ -14,7 +14,9 @@ Sec. 7.4 did for a prototype without RPM feedback:
   (no thrust, no specific force) and its slope equals the hover ratio a_z / sum(omega^2); at idle 0 the
   slope is only half of it. The full speed only scales omega^2, which the identified gains absorb.
 - the PWM held between logged samples (zero-order hold), as the ESC holds the last pulse width; unlike
-  interpolation it never uses a command logged after the instant (SIL logs keep it at only 10 Hz).
+  interpolation it never uses a command logged after the instant. Where the attitude controller's commands
+  (`actuator_controls_0`) are logged faster than the PWM (RflyMAD SIL logs: 20 Hz against 10 Hz), the PWM is
+  made from them by PX4's own mixer (`px4_mixer`; see `motor_commands`).
 - a dead time and the motor's first-order lag (see `read_ulog`).
 IMU samples are interpolated linearly onto the grid (they sample continuous signals).
 
@@ -48,7 +50,9 @@ IDLE_ROTOR_SPEED = 150.0           # rad/s at PWM min, armed: 15% of full speed 
 MOTOR_TIME_CONSTANT = 0.01         # s, see read_ulog
 ACTUATOR_DELAY = 0.024             # s, see read_ulog
 ULOG_TOPICS = ("sensor_combined", "actuator_outputs", "vehicle_attitude", "vehicle_local_position",
-               "rfly_ctrl_lxl")
+               "rfly_ctrl_lxl", "actuator_controls_0")
+#: the controller's commands replace the logged PWM where logged this much faster (`motor_commands`)
+FASTER_COMMANDS = 1.5
 ULOG_MAGIC = b"ULog\x01\x12\x35"   # first 7 bytes of every ULog; a version byte and the start time follow
 ULOG_HEADER_SIZE = 16
 #: readings every log must have -> their columns (None: any number, one per rotor); other keys are optional
@@ -129,7 +133,7 @@ def read_ulog(path, rate_hz: float = 250.0, pwm_range=PWM_RANGE, max_rotor_speed
     on the fault-free flight of the RflyMAD HIL logs (PWM at ~225 Hz): the roll and pitch rows of
     `replay.identify_effectiveness` explain most (R^2 0.77) for a lag plus dead time of ~33 ms, nearly all
     dead time (tau 5-10 ms with 24-28 ms delay; a 30 ms lag alone reaches R^2 0.37): the simulator's loop
-    (USB, MAVLink) adds to the motor. The SIL logs' 10 Hz PWM cannot resolve this; they get the same values.
+    (USB, MAVLink) adds to the motor. The SIL logs' 10-20 Hz commands cannot resolve this; they get the same values.
     """
     ulog = _parse_ulog(path, _read_bytes(path))
     topics = {d.name: _Topic(path, d.name, d.data) for d in ulog.data_list if d.multi_id == 0}
@@ -146,7 +150,8 @@ def read_ulog(path, rate_hz: float = 250.0, pwm_range=PWM_RANGE, max_rotor_speed
         raise LogError(path, f"too few samples ({len(time)} at {rate_hz:g} Hz where sensor_combined and "
                              f"actuator_outputs overlap in time; at least {MIN_SAMPLES} needed)")
 
-    pwm = hold(t_out + actuator_delay, outputs.columns("output", n_rotors), time)
+    t_pwm, pwm, commands_from = motor_commands(topics, start, n_rotors, pwm_range)
+    pwm = hold(t_pwm + actuator_delay, pwm, time)
     speed_command = pwm_to_rotor_speed(pwm, pwm_range, max_rotor_speed, idle_rotor_speed)
     readings = {
         "gyro": interpolate(t_imu, imu.columns("gyro_rad", 3), time),
@@ -158,9 +163,35 @@ def read_ulog(path, rate_hz: float = 250.0, pwm_range=PWM_RANGE, max_rotor_speed
     fault_time, fault_target, effectiveness = _rfly_fault(topics.get("rfly_ctrl_lxl"), start, n_rotors)
     metadata = {"pwm_range": list(pwm_range), "max_rotor_speed": max_rotor_speed,
                 "idle_rotor_speed": idle_rotor_speed, "motor_time_constant": motor_time_constant,
-                "actuator_delay": actuator_delay, "actuator_rate_hz": _median_rate(t_out),
+                "actuator_delay": actuator_delay, "actuator_rate_hz": _median_rate(t_pwm),
+                "motor_commands": commands_from,
                 "fault_effectiveness": effectiveness, "hardware": ulog.msg_info_dict.get("ver_hw", "")}
     return FlightLog(time, readings, PX4_QUAD_X_ORDER, fault_time, fault_target, str(path), None, metadata)
+
+
+def motor_commands(topics: dict, start: int, n_rotors: int, pwm_range=PWM_RANGE):
+    """(times (m,), PWM (m, n_rotors), the topic it came from): the motor commands replay holds.
+
+    `actuator_outputs`, the PWM itself, unless `actuator_controls_0` (roll, pitch, yaw, thrust) is logged
+    FASTER_COMMANDS (1.5) times as fast or more and the vehicle is a quadrotor: then PX4's quad X mixer makes
+    the PWM from each controls sample (`px4_mixer.mix_quad_x`), pwm_min + u (pwm_max - pwm_min), while the
+    latest PWM logged at or before it is armed (>= pwm_min; otherwise that PWM, disarmed). Both topics run in
+    the same cycle, so a mixed sample is no later than a logged one. Unlike the PWM, the controls are logged
+    at the same rate in RflyMAD's SIL and HIL logs (20 Hz and ~255 Hz).
+    """
+    outputs = topics["actuator_outputs"]
+    t_out, pwm = outputs.seconds(start), outputs.columns("output", n_rotors)
+    controls = topics.get("actuator_controls_0")
+    if (n_rotors != 4 or controls is None or "control[3]" not in controls.data
+            or _median_rate(controls.seconds(start)) < FASTER_COMMANDS * _median_rate(t_out)):
+        return t_out, pwm, "actuator_outputs"
+    from .px4_mixer import mix_quad_x
+    t_ctl = controls.seconds(start)
+    low, high = pwm_range
+    logged = hold(t_out, pwm, t_ctl)
+    mixed = np.where(logged.min(axis=1, keepdims=True) >= low,
+                     low + (high - low) * mix_quad_x(controls.columns("control", 4)), logged)
+    return t_ctl, mixed, "actuator_controls_0 through PX4's quad X mixer"
 
 
 def _parse_ulog(path, data: bytes):

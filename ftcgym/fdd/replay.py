@@ -30,8 +30,8 @@ ROTOR_SIGNS = {
 }
 MAIN_ESTIMATE = {"loe_kalman": "k_hat"}   # detector -> the output `estimate_at_alarm`, `final_estimate` report
 FILTER_WN, FILTER_ZETA = 50.0, 0.55       # rad/s, 000 Sec. IV-A, as in the detector
-#: Below this PWM log rate the roll/pitch gains cannot be identified: the low-pass passes ~8 Hz (50 rad/s),
-#: and PWM sampled at 10 Hz (RflyMAD SIL logs) misses the controller's fast corrections, so the fit dilutes
+#: Below this motor-command rate the roll/pitch gains cannot be identified: the low-pass passes ~8 Hz (50 rad/s),
+#: and commands sampled at 10-20 Hz (RflyMAD SIL logs) miss the controller's fast corrections, so the fit dilutes
 #: them to 1-15% of their value (checked by decimating the ~225 Hz HIL logs to 10 Hz).
 MIN_IDENTIFICATION_RATE_HZ = 50.0
 #: (G_p, G_q) / G_az = m * arm / I (000 eq. 9) used then: identified on the fault-free part of the RflyMAD
