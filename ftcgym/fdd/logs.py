@@ -18,7 +18,8 @@ Sec. 7.4 did for a prototype without RPM feedback:
   (`actuator_controls_0`) are logged faster than the PWM (RflyMAD SIL logs: 20 Hz against 10 Hz), the PWM is
   made from them by PX4's own mixer (`px4_mixer`; see `motor_commands`).
 - a dead time and the motor's first-order lag (see `read_ulog`).
-IMU samples are interpolated linearly onto the grid (they sample continuous signals).
+IMU samples are interpolated linearly onto the grid (they sample continuous signals, at about the grid's rate);
+attitude, position and velocity are held (`_navigation`).
 
 Every reader refuses what it cannot replay with one `LogError` (a ValueError) naming the file and the problem:
 library failures are translated where the file is read, and `check_readings` holds the rules for the arrays.
@@ -345,26 +346,22 @@ def _median_rate(t: np.ndarray) -> float:
 
 
 def _navigation(topics: dict, start: int, grid: np.ndarray) -> dict:
-    """Attitude (PX4 stores w x y z; ours is scalar-last) and NED position/velocity, where logged."""
+    """Attitude (PX4 stores w x y z; ours is scalar-last) and NED position/velocity, where logged, each held
+    from its latest sample (zero-order hold): these are the autopilot's estimates at 10-255 Hz, and holding
+    them, unlike interpolating, never reads a sample logged after the instant; a detector can tell a fresh
+    sample from a held one (as `aekf` does with the env's 100 Hz position)."""
     out = {}
     if "vehicle_attitude" in topics:
         att = topics["vehicle_attitude"]
-        q = _continuous_sign(att.columns("q", 4)[:, [1, 2, 3, 0]])
-        q = interpolate(att.seconds(start), q, grid)
+        q = hold(att.seconds(start), att.columns("q", 4)[:, [1, 2, 3, 0]], grid)
         with np.errstate(invalid="ignore", divide="ignore"):  # a zero q gives NaN, which check_readings reports
             out["attitude"] = q / np.linalg.norm(q, axis=1, keepdims=True)
     if "vehicle_local_position" in topics:
         pos = topics["vehicle_local_position"]
         t = pos.seconds(start)
-        out["position"] = interpolate(t, np.column_stack([pos.field(k) for k in ("x", "y", "z")]), grid)
-        out["velocity"] = interpolate(t, np.column_stack([pos.field(k) for k in ("vx", "vy", "vz")]), grid)
+        out["position"] = hold(t, np.column_stack([pos.field(k) for k in ("x", "y", "z")]), grid)
+        out["velocity"] = hold(t, np.column_stack([pos.field(k) for k in ("vx", "vy", "vz")]), grid)
     return out
-
-
-def _continuous_sign(q: np.ndarray) -> np.ndarray:
-    """q and -q are one rotation: flip signs so consecutive quaternions agree (safe to interpolate)."""
-    flips = np.cumprod(np.where(np.sum(q[1:] * q[:-1], axis=1) < 0, -1.0, 1.0))
-    return q * np.concatenate(([1.0], flips))[:, None]
 
 
 def _rfly_fault(data: _Topic | None, start: int, n_rotors: int):
