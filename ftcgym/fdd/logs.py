@@ -177,8 +177,8 @@ def motor_commands(topics: dict, start: int, n_rotors: int, pwm_range=PWM_RANGE)
     FASTER_COMMANDS (1.5) times as fast or more and the vehicle is a quadrotor: then PX4's quad X mixer makes
     the PWM from each controls sample (`px4_mixer.mix_quad_x`), pwm_min + u (pwm_max - pwm_min), while the
     latest PWM logged at or before it is armed (>= pwm_min; otherwise that PWM, disarmed). Both topics run in
-    the same cycle, so a mixed sample is no later than a logged one. Unlike the PWM, the controls are logged
-    at the same rate in RflyMAD's SIL and HIL logs (20 Hz and ~255 Hz).
+    the same cycle, so a mixed sample is no later than a logged one. The RflyMAD SIL logs keep the controls at
+    20 Hz and the PWM at 10 Hz; the HIL logs both at ~255 Hz.
     """
     outputs = topics["actuator_outputs"]
     t_out, pwm = outputs.seconds(start), outputs.columns("output", n_rotors)

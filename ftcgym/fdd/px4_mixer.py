@@ -12,8 +12,8 @@ Per sample:
    (`_minimize_saturation`);
 3. yaw added, its saturation reduced along yaw (upper bound 1.15) and then along the thrust (reducing only).
 The outputs are then clipped to [0, 1]; PWM = PWM_min + u (PWM_max - PWM_min) (no thrust curve: THR_MDL_FAC 0).
-On the RflyMAD SIL logs this reproduces the logged PWM to 1 us before the fault and to a few us after it (the
-logged commands are float32).
+On the RflyMAD SIL logs this reproduces the logged PWM to 2 us before the fault and to about 10 us over the
+first 0.3 s after it (docs/measurements.md, 'Replay without the answer').
 """
 from __future__ import annotations
 
