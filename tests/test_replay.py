@@ -28,10 +28,15 @@ from ftcgym.fdd.logs import (
     read_log,
     read_npz,
 )
+from ftcgym.fdd.px4_mixer import mix_quad_x
 from ftcgym.fdd.recording import RecordingWrapper, _write_csv, _write_npz
 from ftcgym.fdd.replay import (
+    CANNOT_REPLAY,
     IDENTIFICATION_RULE,
+    REPLAYABLE,
     ROTOR_SIGNS,
+    aekf_model,
+    effectiveness_for_detector,
     identification,
     identification_window,
     identify_effectiveness,
@@ -186,8 +191,10 @@ def test_replay_reports_every_rising_edge_of_the_alarm_in_log_time():
     result = replay(log, detector)
     assert detector.updates == 100
     assert result == {"detector": "toggle", "identification": None,
-                      "alarms": [{"time": pytest.approx(5.2), "target": 1, "rotor": 1},
-                                 {"time": pytest.approx(5.51), "target": 1, "rotor": 1}],
+                      "alarms": [{"time": pytest.approx(5.2), "target": 1, "rotor": 1,
+                                  "isolated_time": pytest.approx(5.2)},
+                                 {"time": pytest.approx(5.51), "target": 1, "rotor": 1,
+                                  "isolated_time": pytest.approx(5.51)}],
                       "estimate_at_alarm": [1.0], "final_estimate": [0.0], "logged_fault": None}
 
 
@@ -200,15 +207,79 @@ def test_replay_reports_the_estimate_at_the_first_alarm_and_passes_the_window_an
     assert result["identification"] == window and result["logged_fault"] == {"time": 0.5, "target": 1}
 
 
+ALL_RFLYMAD = sorted(p.name for p in RFLYMAD.glob("TestCase_*.ulg"))
+
+
 @needs_rflymad
-@pytest.mark.parametrize("name", [SIL, HIL])
-def test_loe_kalman_on_rflymad_alarms_on_motor_0_soon_after_the_fault_and_never_before(ulogs, name):
+@pytest.mark.parametrize("name", ALL_RFLYMAD)
+def test_loe_kalman_on_every_rflymad_log_alarms_on_motor_0_within_100_ms_and_never_before(name):
+    pytest.importorskip("pyulog")
+    log = read_log(RFLYMAD / name)
+    plan = identification(log)
+    result = replay(log, make_detector("loe_kalman", log), plan)
+    assert plan["end"] < log.fault_time
+    assert [alarm["target"] for alarm in result["alarms"]] == [0]
+    assert 0.0 <= result["alarms"][0]["time"] - log.fault_time <= 0.1
+
+
+@needs_rflymad
+@pytest.mark.parametrize("name, isolated", [(SIL, False), (HIL, True)])
+def test_aekf_on_rflymad_alarms_at_the_fault_and_isolates_motor_0_where_attitude_is_logged_fast(ulogs, name,
+                                                                                               isolated):
     log = ulogs[name]
-    result = replay(log, make_detector("loe_kalman", log))
+    result = replay(log, make_detector("aekf", log), identification(log))
     assert len(result["alarms"]) == 1
     alarm = result["alarms"][0]
-    assert alarm["target"] == 0
-    assert 0.0 <= alarm["time"] - log.fault_time <= 0.15
+    # the flag is logged at 10 Hz: the fault starts within 0.1 s before it (the previous sample says no fault)
+    assert -0.1 <= alarm["time"] - log.fault_time <= 0.1
+    assert alarm["target"] == (0 if isolated else None)     # SIL: attitude at 20 Hz, LOE still < 0.1 at the alarm
+
+
+@needs_rflymad
+def test_aekf_model_identified_from_a_log_reproduces_its_gains(ulogs):
+    log = ulogs[HIL]
+    window = identification_window(log)
+    B = np.abs(effectiveness_for_detector(log, window))
+    model = aekf_model(log, window)
+    c_T, (I_x, I_y, _) = model.thrust_coefficient, model.inertia
+    assert c_T / model.mass == pytest.approx(B[2].mean())
+    assert (c_T * 1.0 / I_x, c_T * 1.0 / I_y) == pytest.approx((B[0].mean(), B[1].mean()))
+    assert model.rotor_positions[0][:2] == (1.0, 1.0)          # PX4 output 0: front-right
+    named = aekf_model(log, window, "bebop2")
+    assert (named.mass, named.inertia) == (0.374, (1.448e-3, 1.255e-3, 2.520e-3))
+    assert named.thrust_coefficient / named.mass == pytest.approx(B[2].mean())
+    assert named.torque_coefficient / named.thrust_coefficient == pytest.approx(1.9203e-8 / 1.9035e-6)
+
+
+@needs_rflymad
+def test_sil_commands_come_from_the_faster_controls_through_px4s_mixer(ulogs):
+    assert ulogs[SIL].metadata["motor_commands"].startswith("actuator_controls_0")
+    assert ulogs[SIL].metadata["actuator_rate_hz"] == pytest.approx(20.0, rel=0.05)
+    assert ulogs[HIL].metadata["motor_commands"] == "actuator_outputs"     # both ~255 Hz: the PWM itself
+    assert ulogs[HIL].metadata["actuator_rate_hz"] > 200
+
+
+@needs_rflymad
+def test_px4_mixer_reproduces_the_logged_pwm_of_a_sil_flight():
+    from pyulog import ULog
+    ulog = ULog(str(RFLYMAD / SIL), ["actuator_outputs", "actuator_controls_0"])
+    data = {d.name: d.data for d in ulog.data_list if d.multi_id == 0}
+    outputs, controls = data["actuator_outputs"], data["actuator_controls_0"]
+    same = np.searchsorted(controls["timestamp"], outputs["timestamp"])      # logged in the same cycle
+    assert np.array_equal(controls["timestamp"][same], outputs["timestamp"])
+    pwm = np.column_stack([outputs[f"output[{i}]"] for i in range(4)])
+    mixed = 1000 + 1000 * mix_quad_x(np.column_stack([controls[f"control[{i}]"][same] for i in range(4)]))
+    armed_before_fault = (pwm.min(axis=1) >= 1000) & ((outputs["timestamp"] - ulog.start_timestamp) * 1e-6 < 33.0)
+    assert armed_before_fault.sum() > 150
+    assert np.abs(mixed - pwm)[armed_before_fault].max() <= 2.0      # us
+
+
+def test_px4_mixer_desaturates_along_roll_then_adds_yaw():
+    # roll and pitch drive output 1 below 0: roll is cut until it is 0, then yaw is added (worked by hand)
+    outputs = mix_quad_x([[-0.287, 0.294, 0.018, 0.303]])[0]
+    assert outputs == pytest.approx([0.624, 0.018, 0.397779, 0.172221], abs=2e-6)
+    assert mix_quad_x([[0.0, 0.0, 0.0, 0.4]])[0] == pytest.approx([0.4] * 4)
+    assert mix_quad_x([[0.0, 0.0, 0.0, 1.3]])[0] == pytest.approx([1.0] * 4)   # thrust reduced to fit
 
 
 # ----------------------------------------------------------------------------------------- identification window
@@ -303,12 +374,29 @@ def test_cli_exits_2_with_one_line_for_a_flight_without_a_window(tmp_path, capsy
     assert result["identification"] == {"start": 3.0, "end": 8.0, "rule": "given (--identify)"}
 
 
-def test_a_detector_that_cannot_replay_says_why_in_one_line(recording, capsys):
+def test_every_registered_detector_replays_or_says_why_not():
+    from ftcgym.fdd import DETECTORS
+    assert set(DETECTORS.builtins) == set(REPLAYABLE) | set(CANNOT_REPLAY)
+    assert not set(REPLAYABLE) & set(CANNOT_REPLAY)
+
+
+@pytest.mark.parametrize("name", sorted(CANNOT_REPLAY))
+def test_a_detector_that_cannot_replay_exits_2_saying_why_in_one_line(name, tmp_path, capsys):
     from ftcgym.cli import main
-    assert main(["replay", str(recording[0]), "--detector", "aekf"]) == 2
+    assert main(["replay", str(tmp_path / "never-read.ulg"), "--detector", name]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1
-    assert err.startswith("ftcgym replay: detector 'aekf' cannot replay a log: its model needs the vehicle's mass")
+    assert err.startswith(f"ftcgym replay: detector {name!r} cannot replay a log: {CANNOT_REPLAY[name]}; replay "
+                          f"sets up: loe_kalman, aekf")
+
+
+def test_only_aekf_reads_a_vehicle_and_an_unknown_one_is_named(recording, capsys):
+    from ftcgym.cli import main
+    assert main(["replay", str(recording[0]), "--detector", "loe_kalman", "--vehicle", "bebop2"]) == 2
+    assert capsys.readouterr().err == ("ftcgym replay: vehicle 'bebop2': only aekf reads a vehicle; loe_kalman "
+                                       "identifies its model from the log (leave --vehicle out)\n")
+    assert main(["replay", str(recording[0]), "--detector", "aekf", "--vehicle", "nope"]) == 2
+    assert capsys.readouterr().err.endswith("vehicle: unknown name 'nope'; accepted: bebop2, mueller2014\n")
 
 
 # ----------------------------------------------------------------------------------------- recordings
@@ -356,8 +444,20 @@ def test_replay_of_a_recording_gives_the_online_alarm(recording):
     assert online["alarm"] and online["isolated"] == 2
     log = read_npz(path)
     result = replay(log, make_detector("loe_kalman", log))
-    assert result["alarms"] == [{"time": pytest.approx(online["alarm_time"], abs=log.dt), "target": 2, "rotor": 2}]
+    at = pytest.approx(online["alarm_time"], abs=log.dt)
+    assert result["alarms"] == [{"time": at, "target": 2, "rotor": 2, "isolated_time": at}]
     assert result["final_estimate"] == pytest.approx(online["k_hat"])
+
+
+def test_aekf_replays_a_recording_on_the_vehicle_it_names(recording):
+    log = read_npz(recording[0])
+    assert log.metadata["vehicle"] == "bebop2"
+    result = replay(log, make_detector("aekf", log))
+    assert [alarm["target"] for alarm in result["alarms"]] == [2]
+    assert 0.0 < result["alarms"][0]["time"] - 1.0 < 0.1
+    del log.metadata["vehicle"]
+    with pytest.raises(LogError, match="no vehicle for aekf's model .* --vehicle NAME"):
+        make_detector("aekf", log)
 
 
 def test_csv_recording_reads_back_the_same_samples(recording, tmp_path):
@@ -395,7 +495,7 @@ def test_cli_json_is_exactly_one_object_with_the_replay_fields(recording):
     assert result["identification"] is None             # an ftcgym recording: the vehicle's own G
     assert result["logged_fault"] == {"time": 1.0, "target": 2}
     assert len(result["estimate_at_alarm"]) == 4 and result["estimate_at_alarm"][2] < 0.25
-    assert [set(alarm) for alarm in result["alarms"]] == [{"time", "target", "rotor"}]
+    assert [set(alarm) for alarm in result["alarms"]] == [{"time", "target", "rotor", "isolated_time"}]
     assert result["alarms"][0]["rotor"] == result["alarms"][0]["target"]       # an ftcgym recording: same order
     assert result["alarms"][0]["time"] == pytest.approx(info["fdd"]["loe_kalman"]["alarm_time"])
     assert len(result["final_estimate"]) == 4

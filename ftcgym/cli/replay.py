@@ -12,13 +12,16 @@ def add_parser(subparsers) -> None:
                     ".npz/.csv) and print its alarms: times from the log's start, targets in its actuator order.")
     parser.add_argument("log", metavar="LOG", help="the flight log")
     parser.add_argument("--detector", required=True, metavar="NAME",
-                        help="detector to run; replay sets up loe_kalman for a log (others cannot replay yet)")
+                        help="detector to run: loe_kalman or aekf (the others exit 2 saying why they cannot)")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     parser.add_argument("--rate", type=positive_rate, default=250.0, metavar="HZ",
                         help="rate a ULog is resampled to (default: 250); recordings keep their own")
     parser.add_argument("--identify", type=time_window, default=None, metavar="START:END",
                         help="window (s from the log's start) to identify the detector's model on, instead of the "
                              "automatic one (the first 5 s of steady flight from 3 s after take-off)")
+    parser.add_argument("--vehicle", default=None, metavar="NAME",
+                        help="aekf only: a built-in vehicle (bebop2, mueller2014) whose mass, inertia and arm its "
+                             "model keeps, the thrust scaled to the log (default: all identified from the log)")
     parser.set_defaults(run=run)
 
 

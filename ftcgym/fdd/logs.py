@@ -14,9 +14,12 @@ Sec. 7.4 did for a prototype without RPM feedback:
   (no thrust, no specific force) and its slope equals the hover ratio a_z / sum(omega^2); at idle 0 the
   slope is only half of it. The full speed only scales omega^2, which the identified gains absorb.
 - the PWM held between logged samples (zero-order hold), as the ESC holds the last pulse width; unlike
-  interpolation it never uses a command logged after the instant (SIL logs keep it at only 10 Hz).
+  interpolation it never uses a command logged after the instant. Where the attitude controller's commands
+  (`actuator_controls_0`) are logged faster than the PWM (RflyMAD SIL logs: 20 Hz against 10 Hz), the PWM is
+  made from them by PX4's own mixer (`px4_mixer`; see `motor_commands`).
 - a dead time and the motor's first-order lag (see `read_ulog`).
-IMU samples are interpolated linearly onto the grid (they sample continuous signals).
+IMU samples are interpolated linearly onto the grid (they sample continuous signals, at about the grid's rate);
+attitude, position and velocity are held (`_navigation`).
 
 Every reader refuses what it cannot replay with one `LogError` (a ValueError) naming the file and the problem:
 library failures are translated where the file is read, and `check_readings` holds the rules for the arrays.
@@ -48,7 +51,9 @@ IDLE_ROTOR_SPEED = 150.0           # rad/s at PWM min, armed: 15% of full speed 
 MOTOR_TIME_CONSTANT = 0.01         # s, see read_ulog
 ACTUATOR_DELAY = 0.024             # s, see read_ulog
 ULOG_TOPICS = ("sensor_combined", "actuator_outputs", "vehicle_attitude", "vehicle_local_position",
-               "rfly_ctrl_lxl")
+               "rfly_ctrl_lxl", "actuator_controls_0")
+#: the controller's commands replace the logged PWM where logged this much faster (`motor_commands`)
+FASTER_COMMANDS = 1.5
 ULOG_MAGIC = b"ULog\x01\x12\x35"   # first 7 bytes of every ULog; a version byte and the start time follow
 ULOG_HEADER_SIZE = 16
 #: readings every log must have -> their columns (None: any number, one per rotor); other keys are optional
@@ -129,7 +134,7 @@ def read_ulog(path, rate_hz: float = 250.0, pwm_range=PWM_RANGE, max_rotor_speed
     on the fault-free flight of the RflyMAD HIL logs (PWM at ~225 Hz): the roll and pitch rows of
     `replay.identify_effectiveness` explain most (R^2 0.77) for a lag plus dead time of ~33 ms, nearly all
     dead time (tau 5-10 ms with 24-28 ms delay; a 30 ms lag alone reaches R^2 0.37): the simulator's loop
-    (USB, MAVLink) adds to the motor. The SIL logs' 10 Hz PWM cannot resolve this; they get the same values.
+    (USB, MAVLink) adds to the motor. The SIL logs' 10-20 Hz commands cannot resolve this; they get the same values.
     """
     ulog = _parse_ulog(path, _read_bytes(path))
     topics = {d.name: _Topic(path, d.name, d.data) for d in ulog.data_list if d.multi_id == 0}
@@ -146,7 +151,8 @@ def read_ulog(path, rate_hz: float = 250.0, pwm_range=PWM_RANGE, max_rotor_speed
         raise LogError(path, f"too few samples ({len(time)} at {rate_hz:g} Hz where sensor_combined and "
                              f"actuator_outputs overlap in time; at least {MIN_SAMPLES} needed)")
 
-    pwm = hold(t_out + actuator_delay, outputs.columns("output", n_rotors), time)
+    t_pwm, pwm, commands_from = motor_commands(topics, start, n_rotors, pwm_range)
+    pwm = hold(t_pwm + actuator_delay, pwm, time)
     speed_command = pwm_to_rotor_speed(pwm, pwm_range, max_rotor_speed, idle_rotor_speed)
     readings = {
         "gyro": interpolate(t_imu, imu.columns("gyro_rad", 3), time),
@@ -158,9 +164,35 @@ def read_ulog(path, rate_hz: float = 250.0, pwm_range=PWM_RANGE, max_rotor_speed
     fault_time, fault_target, effectiveness = _rfly_fault(topics.get("rfly_ctrl_lxl"), start, n_rotors)
     metadata = {"pwm_range": list(pwm_range), "max_rotor_speed": max_rotor_speed,
                 "idle_rotor_speed": idle_rotor_speed, "motor_time_constant": motor_time_constant,
-                "actuator_delay": actuator_delay, "actuator_rate_hz": _median_rate(t_out),
+                "actuator_delay": actuator_delay, "actuator_rate_hz": _median_rate(t_pwm),
+                "motor_commands": commands_from,
                 "fault_effectiveness": effectiveness, "hardware": ulog.msg_info_dict.get("ver_hw", "")}
     return FlightLog(time, readings, PX4_QUAD_X_ORDER, fault_time, fault_target, str(path), None, metadata)
+
+
+def motor_commands(topics: dict, start: int, n_rotors: int, pwm_range=PWM_RANGE):
+    """(times (m,), PWM (m, n_rotors), the topic it came from): the motor commands replay holds.
+
+    `actuator_outputs`, the PWM itself, unless `actuator_controls_0` (roll, pitch, yaw, thrust) is logged
+    FASTER_COMMANDS (1.5) times as fast or more and the vehicle is a quadrotor: then PX4's quad X mixer makes
+    the PWM from each controls sample (`px4_mixer.mix_quad_x`), pwm_min + u (pwm_max - pwm_min), while the
+    latest PWM logged at or before it is armed (>= pwm_min; otherwise that PWM, disarmed). Both topics run in
+    the same cycle, so a mixed sample is no later than a logged one. The RflyMAD SIL logs keep the controls at
+    20 Hz and the PWM at 10 Hz; the HIL logs both at ~255 Hz.
+    """
+    outputs = topics["actuator_outputs"]
+    t_out, pwm = outputs.seconds(start), outputs.columns("output", n_rotors)
+    controls = topics.get("actuator_controls_0")
+    if (n_rotors != 4 or controls is None or "control[3]" not in controls.data
+            or _median_rate(controls.seconds(start)) < FASTER_COMMANDS * _median_rate(t_out)):
+        return t_out, pwm, "actuator_outputs"
+    from .px4_mixer import mix_quad_x
+    t_ctl = controls.seconds(start)
+    low, high = pwm_range
+    logged = hold(t_out, pwm, t_ctl)
+    mixed = np.where(logged.min(axis=1, keepdims=True) >= low,
+                     low + (high - low) * mix_quad_x(controls.columns("control", 4)), logged)
+    return t_ctl, mixed, "actuator_controls_0 through PX4's quad X mixer"
 
 
 def _parse_ulog(path, data: bytes):
@@ -314,26 +346,22 @@ def _median_rate(t: np.ndarray) -> float:
 
 
 def _navigation(topics: dict, start: int, grid: np.ndarray) -> dict:
-    """Attitude (PX4 stores w x y z; ours is scalar-last) and NED position/velocity, where logged."""
+    """Attitude (PX4 stores w x y z; ours is scalar-last) and NED position/velocity, where logged, each held
+    from its latest sample (zero-order hold): these are the autopilot's estimates at 10-255 Hz, and holding
+    them, unlike interpolating, never reads a sample logged after the instant; a detector can tell a fresh
+    sample from a held one (as `aekf` does with the env's 100 Hz position)."""
     out = {}
     if "vehicle_attitude" in topics:
         att = topics["vehicle_attitude"]
-        q = _continuous_sign(att.columns("q", 4)[:, [1, 2, 3, 0]])
-        q = interpolate(att.seconds(start), q, grid)
+        q = hold(att.seconds(start), att.columns("q", 4)[:, [1, 2, 3, 0]], grid)
         with np.errstate(invalid="ignore", divide="ignore"):  # a zero q gives NaN, which check_readings reports
             out["attitude"] = q / np.linalg.norm(q, axis=1, keepdims=True)
     if "vehicle_local_position" in topics:
         pos = topics["vehicle_local_position"]
         t = pos.seconds(start)
-        out["position"] = interpolate(t, np.column_stack([pos.field(k) for k in ("x", "y", "z")]), grid)
-        out["velocity"] = interpolate(t, np.column_stack([pos.field(k) for k in ("vx", "vy", "vz")]), grid)
+        out["position"] = hold(t, np.column_stack([pos.field(k) for k in ("x", "y", "z")]), grid)
+        out["velocity"] = hold(t, np.column_stack([pos.field(k) for k in ("vx", "vy", "vz")]), grid)
     return out
-
-
-def _continuous_sign(q: np.ndarray) -> np.ndarray:
-    """q and -q are one rotation: flip signs so consecutive quaternions agree (safe to interpolate)."""
-    flips = np.cumprod(np.where(np.sum(q[1:] * q[:-1], axis=1) < 0, -1.0, 1.0))
-    return q * np.concatenate(([1.0], flips))[:, None]
 
 
 def _rfly_fault(data: _Topic | None, start: int, n_rotors: int):

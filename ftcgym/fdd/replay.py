@@ -9,6 +9,7 @@ then the first stretch of steady flight), never from the logged fault, which rea
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import math
 import sys
@@ -17,6 +18,8 @@ import numpy as np
 from scipy import signal
 
 from ..models.constants import GRAVITY
+from ..models.quadrotor import VEHICLES, YAW_SIGNS, make_params
+from .aekf import AugmentedEkfDetector, QuadrotorModel
 from .loe_kalman import SIGNS_000, LoeKalmanDetector, lowpass_coefficients
 from .logs import FTCGYM_INDEX, FTCGYM_ROTOR_ORDER, PX4_QUAD_X_ORDER, FlightLog, LogError, read_log
 
@@ -28,10 +31,11 @@ ROTOR_SIGNS = {
                                 [1.0, -1.0, 1.0, -1.0],
                                 [-1.0, -1.0, -1.0, -1.0]]),
 }
-MAIN_ESTIMATE = {"loe_kalman": "k_hat"}   # detector -> the output `estimate_at_alarm`, `final_estimate` report
+#: detector -> the output `estimate_at_alarm` and `final_estimate` report
+MAIN_ESTIMATE = {"loe_kalman": "k_hat", "aekf": "loe"}
 FILTER_WN, FILTER_ZETA = 50.0, 0.55       # rad/s, 000 Sec. IV-A, as in the detector
-#: Below this PWM log rate the roll/pitch gains cannot be identified: the low-pass passes ~8 Hz (50 rad/s),
-#: and PWM sampled at 10 Hz (RflyMAD SIL logs) misses the controller's fast corrections, so the fit dilutes
+#: Below this motor-command rate the roll/pitch gains cannot be identified: the low-pass passes ~8 Hz (50 rad/s),
+#: and commands sampled at 10-20 Hz (RflyMAD SIL logs) miss the controller's fast corrections, so the fit dilutes
 #: them to 1-15% of their value (checked by decimating the ~225 Hz HIL logs to 10 Hz).
 MIN_IDENTIFICATION_RATE_HZ = 50.0
 #: (G_p, G_q) / G_az = m * arm / I (000 eq. 9) used then: identified on the fault-free part of the RflyMAD
@@ -39,6 +43,10 @@ MIN_IDENTIFICATION_RATE_HZ = 50.0
 #: same simulated vehicle (same hover PWM, same G_az = 1.7e-5 within 2%).
 ROLL_PITCH_PER_HEAVE = 12.0
 
+#: `aekf`'s position and velocity noise on a log whose model is identified (a PX4 log): the logged values are the
+#: autopilot's estimates fused from GNSS, not the env's sensors (0.01 m, 0.02 m/s), so PX4's default GNSS noise
+#: (EKF2_GPS_P_NOISE 0.5 m, EKF2_GPS_V_NOISE 0.3 m/s) stands in for their error
+IDENTIFIED_NAVIGATION_SIGMA = {"position": 0.5, "velocity": 0.3}
 
 #: The automatic identification window (`identification_window`): set from what each means, not fitted to any log
 #: (no values were searched; docs/howto/replay.md shows the RflyMAD results do not move with the window):
@@ -56,6 +64,8 @@ def replay(log: FlightLog, detector, identification: dict | None = None) -> dict
 
     Times are seconds from the log's start; targets and estimates are in the log's own actuator order, and each
     alarm's `rotor` is its target as an ftcgym rotor index (None where the order or the target is unknown).
+    An alarm's target is the first the detector isolates while that alarm is raised, at `isolated_time` (its
+    `time` for a detector that isolates as it alarms; None if it never isolates).
     `estimate_at_alarm` is the main estimate at the first alarm (None without one); `final_estimate` the one
     after the log's last sample: after any crash the log ends with, where it no longer describes the rotors.
     `identification` (from `identification`) is reported as given; `logged_fault` is the log's ground truth,
@@ -67,12 +77,14 @@ def replay(log: FlightLog, detector, identification: dict | None = None) -> dict
     for time, readings, command in log.samples():
         detector.update(readings, time, command)
         status = detector.status()
+        target = status.get("isolated")
         if status["alarm"] and not alarmed:
-            target = status.get("isolated")
-            rotor = to_ftcgym[target] if to_ftcgym is not None and isinstance(target, int) else None
-            alarms.append({"time": time, "target": target, "rotor": rotor})
+            alarms.append({"time": time, "target": None, "rotor": None, "isolated_time": None})
             if at_alarm is None:
                 at_alarm = _main_estimate(detector)
+        if status["alarm"] and target is not None and alarms[-1]["target"] is None:
+            rotor = to_ftcgym[target] if to_ftcgym is not None and isinstance(target, int) else None
+            alarms[-1].update(target=target, rotor=rotor, isolated_time=time)
         alarmed = bool(status["alarm"])
     logged = None if log.fault_time is None else {"time": log.fault_time, "target": log.fault_target}
     return {"detector": detector.name, "identification": identification, "alarms": alarms,
@@ -87,18 +99,33 @@ def _main_estimate(detector) -> list:
 
 # ----------------------------------------------------------------------------------------- detectors
 
-def make_detector(name: str, log: FlightLog, identify=None, **overrides):
+def make_detector(name: str, log: FlightLog, identify=None, vehicle: str | None = None, **overrides):
     """The detector `name` set up for `log`; keyword arguments override its constructor's.
 
     `identify` (start, end) s: the window its model is identified on, instead of `identification_window`'s.
+    `vehicle`: a built-in vehicle name (`ftcgym.models.quadrotor.VEHICLES`) whose shape `aekf` takes
+    (`aekf_model`); only `aekf` reads it.
     """
-    return _detector_factory(name)(log, identify=identify, **overrides)
+    build = _detector_factory(name)
+    if vehicle is not None and name not in READS_VEHICLE:
+        raise ValueError(f"vehicle {vehicle!r}: only {', '.join(READS_VEHICLE)} reads a vehicle; {name} identifies "
+                         f"its model from the log (leave --vehicle out)")
+    extra = {"vehicle": vehicle} if name in READS_VEHICLE else {}
+    return build(log, identify=identify, **extra, **overrides)
 
 
-#: detectors that cannot replay a log yet -> why, in one line
+#: registered detectors that cannot replay a log -> why, in one line (every name of `ftcgym.fdd.DETECTORS` is
+#: in REPLAYABLE or here; a test holds it)
 CANNOT_REPLAY = {
-    "aekf": "its model needs the vehicle's mass, inertia, arm and rotor constants, which a flight log does not "
-            "carry and replay does not identify yet",
+    "loe_cusum": "its motor-speed confirmation needs measured rotor speeds, which a PX4 log does not carry (replay "
+                 "makes them from the PWM), and its thrust test alone, set for the simulator's residuals, alarms in "
+                 "the take-off",
+    "iv_change": "it needs the position, velocity and yaw references the vehicle was flown to (its instruments "
+                 "are made from them), which replay does not read from a log",
+    "airdata_ekf": "it needs a quad-plane's pitot airspeed, pusher speed and current and GNSS velocity, which a "
+                   "quadrotor log does not carry",
+    "propulsion_bayes": "it needs a pusher motor's measured speed and current and the airspeed, which a quadrotor "
+                        "log does not carry",
 }
 
 
@@ -160,8 +187,92 @@ def effectiveness_for_detector(log: FlightLog, window=None) -> np.ndarray:
     return B
 
 
+def _aekf(log: FlightLog, identify=None, vehicle: str | None = None, **overrides):
+    """002's augmented EKF at the log's rate on `aekf_model`. Its model has no ground contact, so on a log whose
+    model is identified (a PX4 log, from the ground up) it is fed from the take-off on (`StartingAt`); an ftcgym
+    recording is fed from its start."""
+    plan = identification(log, identify)
+    window = None if plan is None else (plan["start"], plan["end"])
+    if window is not None:
+        overrides = {"r_sigma": IDENTIFIED_NAVIGATION_SIGMA, **overrides}
+    detector = AugmentedEkfDetector(aekf_model(log, window, vehicle), log.dt, **overrides)
+    return StartingAt(detector, log.time[0] if window is None else takeoff_time(log))
+
+
+def aekf_model(log: FlightLog, window=None, vehicle: str | None = None) -> QuadrotorModel:
+    """The vehicle model `aekf` runs on for `log`, in the log's actuator order.
+
+    - An ftcgym recording (no `window`): the vehicle it was flown with (`vehicle`, else its metadata's), whose
+      rotor speeds the recording holds.
+    - Otherwise B is identified on `window` (`effectiveness_for_detector`). A log's rotor speeds are made from
+      the PWM (`logs.read_ulog`), so the thrust coefficient is the one that carries the weight at those speeds:
+      c_T = m G_az (000 eq. 9). With `vehicle`, its mass, inertia, arm, drag and propeller inertia are kept and
+      c_T, c_Q rescaled together. Without, everything comes from B: the EKF without drag sees only c_T / m,
+      c_T b / I_x and c_T h / I_y (002 eq. 22-27 with 000 eq. 4), so m = 1 kg and b = h = 1 m fix the scale,
+      I_x = c_T b / G_p, I_y = c_T h / G_q, I_z = I_x + I_y (a flat vehicle), and c_Q = 0: B has no yaw row,
+      so the yaw moment is left to the process noise.
+    Raises LogError for an unknown vehicle, or a recording with none.
+    """
+    if window is None:
+        name = vehicle or log.metadata.get("vehicle")
+        if name is None:
+            raise LogError(log.source, f"no vehicle for aekf's model (the recording names none); give one with "
+                                       f"--vehicle NAME (accepted: {', '.join(sorted(VEHICLES))})")
+        return QuadrotorModel.from_params(_vehicle(log, name))
+    heave, roll, pitch = _effectiveness_gains(log, window)
+    order = FTCGYM_INDEX.get(log.actuator_order, (0, 1, 2, 3))
+    if vehicle is None:
+        positions = np.array([[1.0, -1.0, 0.0], [1.0, 1.0, 0.0], [-1.0, 1.0, 0.0], [-1.0, -1.0, 0.0]])
+        inertia = (heave / roll, heave / pitch, heave / roll + heave / pitch)
+        return QuadrotorModel(mass=1.0, inertia=inertia, rotor_positions=tuple(map(tuple, positions[list(order)])),
+                              thrust_coefficient=heave, torque_coefficient=0.0,
+                              yaw_signs=tuple(YAW_SIGNS[i] for i in order))
+    params = _vehicle(log, vehicle)
+    model = QuadrotorModel.from_params(params)
+    scale = params.mass * heave / params.thrust_coefficient
+    return dataclasses.replace(model, thrust_coefficient=model.thrust_coefficient * scale,
+                               torque_coefficient=model.torque_coefficient * scale,
+                               rotor_positions=tuple(model.rotor_positions[i] for i in order),
+                               yaw_signs=tuple(model.yaw_signs[i] for i in order))
+
+
+def _effectiveness_gains(log: FlightLog, window) -> tuple:
+    """(G_az, G_p, G_q) of 000 eq. (9), magnitudes of the B identified on `window`."""
+    B = np.abs(effectiveness_for_detector(log, window))
+    return float(B[2].mean()), float(B[0].mean()), float(B[1].mean())
+
+
+def _vehicle(log: FlightLog, name: str):
+    try:
+        return make_params(name)
+    except ValueError:
+        raise LogError(log.source, f"vehicle: unknown name {name!r}; accepted: {', '.join(sorted(VEHICLES))}") from None
+
+
+class StartingAt:
+    """A detector fed only from `start` (s) on: before it, the samples are skipped (reset state is kept)."""
+
+    def __init__(self, detector, start: float):
+        self.detector, self.start = detector, float(start)
+        self.name, self.output_fields = detector.name, detector.output_fields
+
+    def reset(self) -> None:
+        self.detector.reset()
+
+    def update(self, readings: dict, time: float, command=None) -> None:
+        if time >= self.start:
+            self.detector.update(readings, time, command)
+
+    def outputs(self) -> dict:
+        return self.detector.outputs()
+
+    def status(self) -> dict:
+        return self.detector.status()
+
+
 #: the detectors replay can set up for a log (their model identified from it), by name
-REPLAYABLE = {"loe_kalman": _loe_kalman}
+REPLAYABLE = {"loe_kalman": _loe_kalman, "aekf": _aekf}
+READS_VEHICLE = ("aekf",)
 
 
 # ----------------------------------------------------------------------------------------- identification
@@ -267,23 +378,25 @@ def takeoff_time(log: FlightLog, climb: float = TAKEOFF_CLIMB) -> float:
 # ----------------------------------------------------------------------------------------- command line
 
 def main(args) -> int:
-    """`ftcgym replay LOG --detector NAME [--json] [--rate HZ] [--identify START:END]` (parsed by ftcgym.cli).
+    """`ftcgym replay LOG --detector NAME [--json] [--rate HZ] [--identify START:END] [--vehicle NAME]` (parsed
+    by ftcgym.cli).
 
     Exit status 2 and one line on stderr, "ftcgym replay: <file>: <problem>", for a log it cannot replay
-    (any LogError, an identification window included) or a detector it cannot set up; other exceptions are bugs
-    and keep their traceback.
+    (any LogError, an identification window included) or a detector it cannot set up (a ValueError: an unknown
+    or unreplayable detector, a vehicle it does not read); other exceptions are bugs and keep their traceback.
     """
     try:
-        build = _detector_factory(args.detector)  # a wrong name fails before the log is read
+        _detector_factory(args.detector)  # a wrong name fails before the log is read
     except ValueError as error:
         return _fail(error)
-    identify = getattr(args, "identify", None)
+    identify, vehicle = getattr(args, "identify", None), getattr(args, "vehicle", None)
     try:
         # Library chatter goes to stderr: with --json, stdout carries exactly one JSON object.
         with contextlib.redirect_stdout(sys.stderr):
             log = read_log(args.log, rate_hz=args.rate)
-            result = replay(log, build(log, identify=identify), identification(log, identify))
-    except LogError as error:
+            detector = make_detector(args.detector, log, identify, vehicle)
+            result = replay(log, detector, identification(log, identify))
+    except ValueError as error:     # LogError included
         return _fail(error)
     print(json.dumps(result) if args.json else format_result(result, log))
     return 0
