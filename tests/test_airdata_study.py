@@ -10,6 +10,7 @@ from ftcgym.benchmark.backends import EpisodesFailed
 
 def status(**alarms):
     return {"alarm_time_table2": alarms.get("table2"), "alarm_time_cusum": alarms.get("cusum"),
+            "alarm_time_ramp": alarms.get("ramp"),
             "innovation_alarms": {"gnss": alarms.get("gnss"), "pusher_rpm": alarms.get("pusher_rpm")},
             "table2_criterion": None, "start_time": 1.0}
 
@@ -48,6 +49,23 @@ def test_threshold_table_one_sided_and_round_trip(tmp_path):
     loaded = study.load_segments(str(path))
     assert all(np.array_equal(a, b) for a, b in zip(loaded["pitot_residual_derivative"],
                                                       segments["pitot_residual_derivative"]))
+
+
+def test_ramp_row_is_recomputed_from_the_raw_residual_where_the_forward_airspeed_arms_it():
+    """White residual of the pitot's 0.3 m/s noise in forward flight: the ramp test's z stays far below 16; a
+    -2.5 m/s^2 ramp in one flight is a run above any level up to its peak; below 8 m/s the test does not run."""
+    rng = np.random.default_rng(1)
+    raw = [rng.normal(0.0, 0.3, 25 * 600) for _ in range(2)]
+    ramp = raw[1].copy()
+    ramp[9000:9100] -= 2.5 * np.arange(100) / 25.0
+    forward = [np.full(25 * 600, 18.0), np.full(25 * 600, 18.0)]
+    rows = {r["criterion"]: r for r in study.threshold_table({"pitot_residual_raw": [raw[0], ramp],
+                                                              "forward_airspeed": forward})}
+    assert rows["pitot ramp"]["threshold"] == 16.0 and rows["pitot ramp"]["runs_seen"] == 1
+    quiet = study.ramp_segments([raw[0]], [forward[0]])[0]
+    assert 3.0 < quiet.max() < 8.0
+    assert not study.ramp_segments([ramp], [np.full(25 * 600, 5.0)])[0].any()
+    assert "pitot ramp" not in {r["criterion"] for r in study.threshold_table({"pitot_residual_raw": raw})}
 
 
 def test_fly_rolls_out_a_short_episode_and_scores_it():

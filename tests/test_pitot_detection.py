@@ -10,6 +10,7 @@ from ftcgym.fdd.pitot_detection import (
     TABLE_2_NORM,
     PitotConfirmation,
     PitotResidualDetector,
+    RampGlr,
     ResidualCusum,
     ThresholdCriterion,
 )
@@ -98,12 +99,12 @@ def test_criteria_only_count_while_armed():
     assert d.alarm and d.criterion == "norm"
 
 
-def obs_info(pitot, synthetic, table2=None, cusum=None, sensor=None):
+def obs_info(pitot, synthetic, table2=None, cusum=None, sensor=None, ramp=None):
     """An airdata_ekf-wrapped observation and info: the pitot tests' alarm times and a sensor (GNSS) alarm's."""
     obs = {"pitot_airspeed": np.array([pitot]), "fdd/airdata_ekf/airspeed": np.array([synthetic])}
-    first = min([t for t in (table2, cusum, sensor) if t is not None], default=None)
+    first = min([t for t in (table2, cusum, ramp, sensor) if t is not None], default=None)
     status = {"alarm": first is not None, "alarm_time": first, "alarm_time_table2": table2, "alarm_time_cusum": cusum,
-              "innovation_alarms": {"gnss": sensor}}
+              "alarm_time_ramp": ramp, "innovation_alarms": {"gnss": sensor}}
     return obs, {"time": 3.0, "fdd": {"airdata_ekf": status}}
 
 
@@ -118,7 +119,8 @@ def test_airspeed_switch_feeds_pitot_until_the_alarm_then_the_ekf():
 
 
 def test_airspeed_switch_acts_on_the_first_of_its_pitot_tests():
-    """By default the CUSUM's alarm (sooner on an incipient fault) switches as Table 2's does; `tests` picks."""
+    """By default the CUSUM's and the ramp test's alarms (sooner on an incipient fault) switch as Table 2's does;
+    `tests` picks."""
     both, table2_only = AirspeedSwitchPolicy(), AirspeedSwitchPolicy(tests=("table2",))
     assert both.act(*obs_info(12.0, 17.0, cusum=1.6))[0] == pytest.approx(17.0) and both.switched_at == 1.6
     assert table2_only.act(*obs_info(12.0, 17.0, cusum=1.6))[0] == pytest.approx(12.0)
@@ -127,6 +129,8 @@ def test_airspeed_switch_acts_on_the_first_of_its_pitot_tests():
     late = AirspeedSwitchPolicy()
     late.act(*obs_info(0.0, 17.0, table2=2.4, cusum=2.2))
     assert late.switched_at == 2.2
+    ramp = AirspeedSwitchPolicy()
+    assert ramp.act(*obs_info(12.0, 17.0, ramp=0.9))[0] == pytest.approx(17.0) and ramp.switched_at == 0.9
     for bad in ((), ("glr",)):
         with pytest.raises(ValueError, match="airspeed-switch: tests"):
             AirspeedSwitchPolicy(tests=bad)
@@ -223,3 +227,56 @@ def test_pitot_confirmation_needs_the_burst_then_a_rising_residual():
     assert first_confirmation(burst, step, armed=False) is None
     with pytest.raises(ValueError, match="pitot confirmation"):
         PitotConfirmation(0.0, 2.0, 3.0, 0.2, HZ)
+
+
+def run_ramp(residuals, armed=True, **kwargs):
+    test = RampGlr(HZ, **{"threshold": 5.0, "sigma": 0.3, "reference": 3.0, "horizon": 2.0, **kwargs})
+    for k, r in enumerate(residuals):
+        test.update(r, k / HZ, armed)
+    return test
+
+
+def brute_force_z(window, reference: int, onsets: int, sigma: float) -> float:
+    """max over onsets of -a_hat sqrt(S_xx) / sigma, each by numpy's least squares on [1, max(0, t - theta)]."""
+    t = np.arange(len(window)) / HZ
+    best = -np.inf
+    for after in range(2, onsets + 1):
+        w, tw = window[-(after + reference):], t[-(after + reference):]
+        x = np.maximum(0.0, tw - tw[-after])
+        slope = np.linalg.lstsq(np.column_stack([np.ones_like(x), x]), w, rcond=None)[0][1]
+        best = max(best, -slope * np.sqrt(((x - x.mean()) ** 2).sum()) / sigma)
+    return best
+
+
+def test_ramp_glr_is_the_least_squares_slope_maximised_over_onsets():
+    rng = np.random.default_rng(3)
+    r = rng.normal(0.0, 0.3, 300) - np.where(np.arange(300) > 250, 0.05 * (np.arange(300) - 250), 0.0)
+    test = run_ramp(r)
+    assert test.statistic == pytest.approx(brute_force_z(r[-125:], 75, 50, 0.3), rel=1e-9)
+    assert test.statistic > 3.0
+
+
+def test_ramp_glr_alarms_on_the_incipient_ramp_within_a_second():
+    """Noise-free -2.5 m/s^2 from 6 s (001 Sec. 7.2.2), after the 5 s window has filled: for the onset m samples
+    back z = 2.5 sqrt(S_xx) / sigma, S_xx of [0] * 75 + [0, 1, ..., m - 1] / f; with sigma 0.3 it first passes 5
+    at m = 10 (z = 5.39), 0.36 s after onset. With the pitot's 0.3 m/s noise it stays within 0.6 s."""
+    t = np.arange(250) / HZ
+    r = np.where(t < 6.0, 0.3, 0.3 - 2.5 * (t - 6.0))
+    test = run_ramp(r)
+    assert test.alarm and test.alarm_time - 6.0 == pytest.approx(0.36, abs=1e-9)
+    assert test.alarm_time < run_cusum(r).alarm_time - 1.0
+    noisy = run_ramp(r + np.random.default_rng(0).normal(0.0, 0.3, len(r)))
+    assert noisy.alarm and 0.1 < noisy.alarm_time - 6.0 < 0.6
+
+
+def test_ramp_glr_ignores_rises_constant_offsets_and_white_noise_and_needs_arming():
+    t = np.arange(25 * 60) / HZ
+    assert not run_ramp(+2.5 * t).alarm                                  # one-sided: a rising residual
+    assert not run_ramp(np.full(len(t), -4.0)).alarm                     # a steady offset is the baseline
+    assert not run_ramp(np.random.default_rng(1).normal(0.0, 0.3, 25 * 600)).alarm
+    drop = np.concatenate([np.full(150, 18.0), np.zeros(100)])           # the pitot reads zero from 6 s
+    assert run_ramp(drop).alarm_time == pytest.approx(6.0)                # on the first sample that drops
+    unarmed = run_ramp(drop, armed=False)
+    assert not unarmed.alarm and unarmed.statistic == 0.0
+    with pytest.raises(ValueError, match="ramp test"):
+        RampGlr(HZ, threshold=5.0, sigma=0.0, reference=3.0, horizon=2.0)

@@ -7,7 +7,7 @@ import numpy as np
 from .quadplane_autopilot import QuadPlaneAutopilot
 
 #: The `airdata_ekf` pitot tests, as named in its status (`alarm_time_<test>`).
-PITOT_TESTS = ("table2", "cusum")
+PITOT_TESTS = ("table2", "cusum", "ramp")
 
 
 class PitotOnlyPolicy:
@@ -25,12 +25,13 @@ class AirspeedSwitchPolicy:
     alarms, then the EKF's synthetic airspeed (`obs["fdd/airdata_ekf/airspeed"]`) for good (001 Sec. 7.2.1:
     "switch to the synthetic airspeed estimation"). The env must be wrapped with the `airdata_ekf` detector.
 
-    `tests`: the pitot tests it switches on, by default both that the detector runs on the residual: 001's
-    Table 2 thresholds (Sec. 6.1) and the CUSUM that Sec. 7.2.2 and 8.1 recommend for incipient faults, tuned
-    to the same false-alarm budget. Table 2 alone alarms on the -2.5 m/s^2 ramp ~2.45 s after onset, when the
-    reading is ~6 m/s low, and the autopilot flying on it until then rolls past 45 deg in most flights. The
-    CUSUM alarms ~0.8 s sooner; on an abrupt fault Table 2's derivative test is the first (0.1 s). Measured on
-    tuning flights; see docs/measurements.md, 'Tuning record: agents/airspeed_policies.py'.
+    `tests`: the pitot tests it switches on, by default all three that the detector runs on the residual: 001's
+    Table 2 thresholds (Sec. 6.1), the CUSUM that Sec. 7.2.2 and 8.1 recommend for incipient faults and the
+    ramp-onset GLR (`pitot_detection.RampGlr`), the last two set to the same false-alarm budget. Table 2 alone
+    alarms on the -2.5 m/s^2 ramp ~2.45 s after onset, when the reading is ~6 m/s low, and the autopilot flying
+    on it until then rolls past 45 deg in most flights; the CUSUM alarms ~0.7 s sooner, the ramp test ~1.7 s
+    sooner. Measured on tuning flights; see docs/measurements.md, 'Tuning record: agents/airspeed_policies.py'
+    and 'Tuning record: fdd/pitot_detection.py'.
     """
 
     detector = "airdata_ekf"

@@ -37,7 +37,7 @@ POLICIES = Registry("policy", "ftcgym.policies", {
                              "QuadPlaneAutopilot-v0 upper bound: feeds the true airspeed (benchmark oracle info)"),
     "airspeed-switch": Entry(f"{_HERE}:airspeed_switch",
                              "QuadPlaneAutopilot-v0: the pitot reading until the first airdata_ekf pitot alarm "
-                             "(Table 2 or CUSUM), then the EKF airspeed; needs the airdata_ekf detector"),
+                             "(Table 2, CUSUM or ramp test), then the EKF airspeed; needs the airdata_ekf detector"),
     "synthetic-only": Entry(f"{_HERE}:synthetic_only",
                             "QuadPlaneAutopilot-v0: always the airdata_ekf EKF airspeed; needs the airdata_ekf "
                             "detector"),

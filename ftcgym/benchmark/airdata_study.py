@@ -24,12 +24,20 @@ from ftcgym.benchmark.runner import episode_seed, make_env, roll_out
 from ftcgym.benchmark.scenarios import get_scenario
 from ftcgym.fdd import false_alarm
 from ftcgym.fdd.airdata_ekf import EKF_HZ, INNOVATION_DETECTORS, InnovationTest
-from ftcgym.fdd.pitot_detection import CUSUM_DEFAULT, TABLE_2_DERIVATIVE, TABLE_2_NORM, ResidualCusum
+from ftcgym.fdd.pitot_detection import (
+    CUSUM_DEFAULT,
+    RAMP_DEFAULT,
+    RAMP_MIN_AIRSPEED,
+    TABLE_2_DERIVATIVE,
+    TABLE_2_NORM,
+    RampGlr,
+    ResidualCusum,
+)
 
 DETECTOR = "airdata_ekf"
 FORWARD_SKEW = math.radians(80.0)       # 001 Table 5: forward flight above 80 deg skew
 BIAS_WINDOW = 10.0                       # s before onset over which the signed EKF airspeed error is averaged
-ALARMS = ("table2", "cusum", "gnss", "pusher_rpm")
+ALARMS = ("table2", "cusum", "ramp", "gnss", "pusher_rpm")
 
 
 def fly(scenario_name: str, seed: int, policy_name: str = "oracle-airspeed", env_overrides: dict | None = None,
@@ -72,6 +80,7 @@ def _sample(obs: dict, info: dict) -> list[float]:
 
 def _alarm_times(status: dict) -> dict:
     return {"table2": status["alarm_time_table2"], "cusum": status["alarm_time_cusum"],
+            "ramp": status["alarm_time_ramp"],
             **{sensor: status["innovation_alarms"].get(sensor) for sensor in ("gnss", "pusher_rpm")}}
 
 
@@ -167,12 +176,13 @@ def summary(results: list[dict]) -> dict:
 
 # ---- thresholds (001 eq. 40-41, Fig. 4) ----
 
-def criteria(cusum=CUSUM_DEFAULT, innovation_detectors=INNOVATION_DETECTORS) -> list[tuple]:
+def criteria(cusum=CUSUM_DEFAULT, innovation_detectors=INNOVATION_DETECTORS, ramp=RAMP_DEFAULT) -> list[tuple]:
     """(name, trace signal, threshold, hold time, sign) of every criterion the detector runs; sign +1 / -1: a
     one-sided criterion, whose statistics are those of max(sign * s, 0)."""
     out = [("pitot norm", "pitot_residual", TABLE_2_NORM[0], TABLE_2_NORM[1], 0),
            ("pitot derivative", "pitot_residual_derivative", TABLE_2_DERIVATIVE[0], TABLE_2_DERIVATIVE[1], 0),
-           ("pitot cusum", "cusum", cusum[1], 0.0, 0)]
+           ("pitot cusum", "cusum", cusum[1], 0.0, 0),
+           ("pitot ramp", "ramp", ramp[0], 0.0, 1)]
     for sensor, spec in innovation_detectors.items():
         spec = InnovationTest.of(spec)
         for c in spec.channels:
@@ -197,22 +207,35 @@ def traces_to_segments(traces: list[list[dict]]) -> dict[str, list[np.ndarray]]:
 def cusum_segments(raw_segments: list[np.ndarray], cusum=CUSUM_DEFAULT, sample_hz: float = EKF_HZ) -> list[np.ndarray]:
     """The CUSUM statistic g of `ResidualCusum(*cusum)` over each flight's raw pitot residual (armed
     throughout), so saved flights can be re-scored with the current (or any) CUSUM parameters."""
-    out = []
-    for raw in raw_segments:
-        c, g = ResidualCusum(sample_hz, *cusum), np.empty(len(raw))
-        for k, r in enumerate(raw):
-            c.update(r, k / sample_hz)
-            g[k] = c.statistic
-        out.append(g)
+    return [_statistic(ResidualCusum(sample_hz, *cusum), raw, sample_hz) for raw in raw_segments]
+
+
+def ramp_segments(raw_segments: list[np.ndarray], forward_airspeeds: list[np.ndarray], ramp=RAMP_DEFAULT,
+                  min_airspeed: float = RAMP_MIN_AIRSPEED, sample_hz: float = EKF_HZ) -> list[np.ndarray]:
+    """The ramp GLR's z of `RampGlr(*ramp)` over each flight's raw pitot residual, armed where the EKF's forward
+    airspeed is at least `min_airspeed` (as the detector arms it)."""
+    return [_statistic(RampGlr(sample_hz, *ramp), raw, sample_hz, forward >= min_airspeed)
+            for raw, forward in zip(raw_segments, forward_airspeeds)]
+
+
+def _statistic(test, raw: np.ndarray, sample_hz: float, armed=None) -> np.ndarray:
+    out = np.empty(len(raw))
+    for k, r in enumerate(raw):
+        test.update(r, k / sample_hz, True if armed is None else bool(armed[k]))
+        out[k] = test.statistic
     return out
 
 
 def threshold_table(segments: dict[str, list[np.ndarray]], target_per_hour: float = 1e-3,
                     sample_hz: float = EKF_HZ, tail: str = "auto") -> list[dict]:
     """`false_alarm.criterion_report` for each criterion of `criteria()` on the fault-free `segments`; the
-    CUSUM row is recomputed from the raw residual with the current CUSUM_DEFAULT where it was recorded."""
+    CUSUM and ramp rows are recomputed from the raw residual with the current CUSUM_DEFAULT and RAMP_DEFAULT
+    where it was recorded (the ramp row needs the forward airspeed that arms it)."""
     if "pitot_residual_raw" in segments:
-        segments = {**segments, "cusum": cusum_segments(segments["pitot_residual_raw"], sample_hz=sample_hz)}
+        raw = segments["pitot_residual_raw"]
+        segments = {**segments, "cusum": cusum_segments(raw, sample_hz=sample_hz)}
+        if "forward_airspeed" in segments:
+            segments["ramp"] = ramp_segments(raw, segments["forward_airspeed"], sample_hz=sample_hz)
     rows = []
     for name, signal, threshold, hold, sign in criteria():
         if signal not in segments:

@@ -32,9 +32,11 @@ TU Delft 2023 (001). Pipeline per sample:
    (`models/sensors.py`), so in hover with the tail or side to a 5 m/s wind it reads ~0 while |V| ~ 5-6 m/s,
    and r = pitot - |V| can cross the 5.5 m/s norm threshold in a fault-free hover (docs/measurements.md,
    'Tuning record: fdd/airdata_ekf.py'). In forward flight u ~ |V| and the two agree. `"airspeed"` gives 001's r.
-5. Beside Table 2, a one-sided CUSUM on the drop of the same filtered residual (`ResidualCusum`, the
-   statistical test 001 Sec. 7.2.2 and 8.1 recommend for incipient faults), armed with it; `criterion`
-   ("table2", "cusum", "either") picks which drives the pitot alarm, and both alarm times are published.
+5. Beside Table 2, two tests for incipient faults, armed with it: a one-sided CUSUM on the drop of the
+   filtered residual (`ResidualCusum`, the statistical test 001 Sec. 7.2.2 and 8.1 recommend), and a GLR
+   matched to a ramp onset in the raw residual (`RampGlr`, a departure: 001 has no ramp test). `criterion`
+   ("table2", "cusum", "ramp", "either": the first of the three) picks which drives the pitot alarm; every
+   test's alarm time is published.
 6. EKF fault tolerance (Sec. 6.2, Tables 2-3): one detector (low-pass, norm and derivative criteria of
    Table 2) per measurement innovation, GNSS velocity V_N, V_E, V_D (isolates "gnss") and the accelerometer-
    model a_x (isolates "pusher_rpm": the pusher RPM enters a_x's model, eq. 13-14); on an alarm the sensor's
@@ -77,12 +79,16 @@ from . import kalman
 from .base import Biquad, model_with_error
 from .pitot_detection import (
     CUSUM_DEFAULT,
+    RAMP_DEFAULT,
+    RAMP_MIN_AIRSPEED,
     TABLE_2_DERIVATIVE,
     TABLE_2_NORM,
     ConfirmationTest,
     CusumTest,
     PitotConfirmation,
     PitotResidualDetector,
+    RampGlr,
+    RampTest,
     ResidualCusum,
     ThresholdTest,
 )
@@ -177,7 +183,7 @@ INNOVATION_DETECTORS = {
 #: 'Tuning record: fdd/airdata_ekf.py'.
 #: Sec. 6.2: "increases its covariance": the variance (units^2) a measurement gets once its detector alarms
 FAULT_COVARIANCE = 1e6
-PITOT_CRITERIA = ("table2", "cusum", "either")
+PITOT_CRITERIA = ("table2", "cusum", "ramp", "either")
 #: `vertical_wind`: "state" estimates mu_z (001 eq. 5, Table 1); "fixed" holds it at 0, an option (a departure
 #: from 001) for models whose error the EKF would explain as a vertical wind: with a hover thrust coefficient
 #: 10% low (`error_seed` 2 and 3) the EKF meets the thrust deficit in the first hover, under the 20 s wind
@@ -337,7 +343,9 @@ class AirdataEkfSettings:
     detection_delay: float | None = None       # s after the start before the tests arm; None: wind_boost_seconds
     pitot_reference: str = "forward"           # "airspeed": |V| as 001; "forward": max(u, 0), along the pitot
     cusum: CusumTest = CUSUM_DEFAULT           # the CUSUM that runs beside Table 2
-    criterion: str = "table2"                  # the pitot test that drives `alarm`: "table2", "cusum", "either"
+    ramp: RampTest = RAMP_DEFAULT              # the ramp-onset GLR that runs beside Table 2 ...
+    ramp_min_airspeed: float = RAMP_MIN_AIRSPEED   # m/s: ... while the EKF's forward airspeed is at least this
+    criterion: str = "table2"                  # the pitot test that drives `alarm`: PITOT_CRITERIA
     innovation_detectors: dict = field(default_factory=lambda: dict(INNOVATION_DETECTORS))  # sensor -> InnovationTest
     fault_covariance: float = FAULT_COVARIANCE  # variance a measurement gets once its sensor is isolated (Sec. 6.2)
     vertical_wind: str = "state"               # "state": mu_z estimated (001); "fixed": held at 0 (VERTICAL_WIND)
@@ -394,6 +402,8 @@ class AirdataEkfDetector:
             raise ValueError(f"criterion: {s.criterion!r}; accepted: {list(PITOT_CRITERIA)}")
         self.criterion = s.criterion
         self.cusum = ResidualCusum(ekf_hz, *s.cusum)
+        self.ramp = RampGlr(ekf_hz, *s.ramp)
+        self.ramp_min_airspeed = float(s.ramp_min_airspeed)
         # one PitotResidualDetector (low-pass + norm + derivative criteria) per innovation channel
         self.innovation_detectors = {
             sensor: {c: PitotResidualDetector(ekf_hz, spec.norm, spec.derivative, spec.sign) for c in spec.channels}
@@ -425,6 +435,7 @@ class AirdataEkfDetector:
         self._pitot, self._armed, self._residual = None, False, 0.0
         self.pitot_detector.reset()
         self.cusum.reset()
+        self.ramp.reset()
         for channels in self.innovation_detectors.values():
             for detector in channels.values():
                 detector.reset()
@@ -500,6 +511,7 @@ class AirdataEkfDetector:
             self._residual = residual
             self.pitot_detector.update(self._residual, time, pitot_armed)
             self.cusum.update(self._residual, time, pitot_armed)
+            self.ramp.update(self._residual, time, pitot_armed and self.forward_airspeed >= self.ramp_min_airspeed)
         if self.record and self._armed:
             self.trace.append(self._trace_row(time))
 
@@ -509,7 +521,7 @@ class AirdataEkfDetector:
             return None
         if not math.isfinite(self._pitot):
             raise ValueError(f"airdata_ekf: reading {self.pitot_key!r} is not finite at t = {time}")
-        reference = self.airspeed if self.pitot_reference == "airspeed" else max(float(self.x[0]), 0.0)
+        reference = self.airspeed if self.pitot_reference == "airspeed" else self.forward_airspeed
         return self._pitot - reference
 
     def _roll_back(self) -> None:
@@ -612,9 +624,11 @@ class AirdataEkfDetector:
     def _trace_row(self, time: float) -> dict:
         """The detection signals of this EKF step (fault-free statistics for `false_alarm`)."""
         row = {"time": float(time), "skew": float(self._filtered[18]), "airspeed": self.airspeed,
+               "forward_airspeed": self.forward_airspeed,
                "pitot_residual_raw": self._residual,
                "pitot_residual": self.pitot_detector.residual,
-               "pitot_residual_derivative": self.pitot_detector.derivative, "cusum": self.cusum.statistic}
+               "pitot_residual_derivative": self.pitot_detector.derivative, "cusum": self.cusum.statistic,
+               "ramp": self.ramp.statistic}
         for sensor, channels in self.innovation_detectors.items():
             for c, detector in channels.items():
                 row[f"{sensor}_{c}_innovation"] = detector.residual
@@ -627,9 +641,9 @@ class AirdataEkfDetector:
 
     def pitot_alarm_time(self) -> float | None:
         """When the pitot test selected by `criterion` alarmed (None: not yet)."""
-        times = {"table2": [self.pitot_detector.alarm_time], "cusum": [self.cusum.alarm_time],
-                 "either": [self.pitot_detector.alarm_time, self.cusum.alarm_time]}[self.criterion]
-        times = [t for t in times if t is not None]
+        tests = {"table2": self.pitot_detector, "cusum": self.cusum, "ramp": self.ramp}
+        chosen = tests.values() if self.criterion == "either" else [tests[self.criterion]]
+        times = [test.alarm_time for test in chosen if test.alarm_time is not None]
         return min(times) if times else None
 
     def first_alarm(self) -> tuple[float | None, str | None]:
@@ -643,6 +657,11 @@ class AirdataEkfDetector:
     def airspeed(self) -> float:
         return float(np.linalg.norm(self.x[:3]))
 
+    @property
+    def forward_airspeed(self) -> float:
+        """The EKF's air velocity along the pitot (body x), max(u, 0)."""
+        return max(float(self.x[0]), 0.0)
+
     def outputs(self) -> dict:
         return {"airspeed": np.array([min(self.airspeed, 200.0)]), "wind": np.clip(self.x[3:], -100.0, 100.0),
                 "pitot_residual": np.clip([self.pitot_detector.residual], -200.0, 200.0)}
@@ -653,8 +672,9 @@ class AirdataEkfDetector:
         return {"alarm": alarm_time is not None, "alarm_time": alarm_time, "isolated": isolated,
                 "criterion": self.criterion, "pitot_alarm": self.pitot_alarm_time() is not None,
                 "pitot_alarm_time": self.pitot_alarm_time(), "alarm_time_table2": d.alarm_time,
-                "alarm_time_cusum": self.cusum.alarm_time, "table2_criterion": d.criterion,
-                "cusum_statistic": float(self.cusum.statistic), "innovation_alarms": dict(self.innovation_alarms),
+                "alarm_time_cusum": self.cusum.alarm_time, "alarm_time_ramp": self.ramp.alarm_time,
+                "table2_criterion": d.criterion, "cusum_statistic": float(self.cusum.statistic),
+                "ramp_statistic": float(self.ramp.statistic), "innovation_alarms": dict(self.innovation_alarms),
                 "innovation_criteria": dict(self.innovation_criteria),
                 "innovation_unconfirmed": dict(self.innovation_unconfirmed),
                 "pitot_residual": float(d.residual),

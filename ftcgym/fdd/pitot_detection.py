@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+import numpy as np
 from scipy import signal
 
 from .base import Biquad
@@ -44,6 +45,15 @@ class CusumTest(NamedTuple):
     cutoff_hz: float    # Hz, its own low-pass of the residual
 
 
+class RampTest(NamedTuple):
+    """The GLR for a ramp onset in the raw residual (`RampGlr`)."""
+
+    threshold: float    # the standardised slope z (in sigmas) at or above which it alarms
+    sigma: float        # m/s, the residual's noise level the statistic is scaled by
+    reference: float    # s, the baseline window before a candidate onset
+    horizon: float      # s, the longest ramp considered (candidate onsets this far back)
+
+
 class ConfirmationTest(NamedTuple):
     """An innovation burst confirmed by the pitot (`PitotConfirmation`)."""
 
@@ -62,6 +72,14 @@ TABLE_2_DERIVATIVE = ThresholdTest(25.0, 0.12, 5.0)
 #: false detection per flight hour (001 Sec. 6.1's budget, run-rate method, `ftcgym thresholds`) rounded up.
 #: Chosen on fault-free tuning flights; see docs/measurements.md, 'Tuning record: fdd/pitot_detection.py'.
 CUSUM_DEFAULT = CusumTest(1.0, 1.9, 0.5)
+#: The ramp-onset GLR (`RampGlr`): threshold on z, sigma (the pitot's noise, `models/sensors.py`), reference
+#: and horizon (s). Set on fault-free tuning flights; see docs/measurements.md, 'Tuning record:
+#: fdd/pitot_detection.py'.
+RAMP_DEFAULT = RampTest(16.0, 0.3, 3.0, 2.0)
+#: m/s, the EKF forward airspeed below which the ramp test does not run: near hover the simulated pitot reads
+#: its floor (forward flow only, clipped at 0) and the residual is not the Gaussian the GLR assumes; Table 2 and
+#: the CUSUM still run there. Set with RAMP_DEFAULT.
+RAMP_MIN_AIRSPEED = 8.0
 
 
 class ThresholdCriterion:
@@ -217,3 +235,75 @@ class PitotConfirmation:
             self.criterion.reset()
             return False
         return self.criterion(self.statistic)
+
+
+class RampGlr:
+    """The generalised likelihood ratio test for a ramp onset in the raw pitot residual: a detector matched to
+    the incipient blockage of 001 Sec. 7.2.2, whose reading drifts down at a constant rate.
+
+    Model (Basseville and Nikiforov 1993, ch. 2: the GLR for a change of unknown magnitude at an unknown time;
+    ch. 7: an additive change with a known profile, here a ramp): over the last `reference` + `horizon` s, the
+    residual is r_i = b + e_i before an onset theta and r_i = b + a (t_i - theta) + e_i after it, e_i white with
+    standard deviation sigma. For each candidate theta (every sample of the last `horizon` s) the baseline b and
+    the rate a are fitted by least squares over the window [theta - reference, now] with x_i = max(0, t_i -
+    theta):
+
+        a_hat = S_xr / S_xx,  S_xx = sum (x_i - x_bar)^2,  S_xr = sum (x_i - x_bar)(r_i - r_bar),
+
+    and the log-likelihood ratio of the ramp against no change is a_hat^2 S_xx / (2 sigma^2). The statistic is
+    its signed square root maximised over theta, z = max_theta (-a_hat) sqrt(S_xx) / sigma, one-sided because a
+    blocked pitot reads low (as `ResidualCusum`); it alarms when z >= `threshold`. Departure: the residual is not
+    white (the wind estimate wanders with the turbulence), so sigma only scales z; the threshold is set from
+    fault-free flights by the run-rate method of `ftcgym thresholds` (001 eq. 40-41 do not hold for a correlated
+    statistic). The baseline is fitted per candidate, so a slowly wandering residual mean does not build up
+    evidence the way a fixed reference would. `statistic` is z, 0 until the window is full or while not `armed`.
+    """
+
+    def __init__(self, sample_hz: float, threshold: float, sigma: float, reference: float, horizon: float):
+        if not (threshold > 0 and sigma > 0 and reference > 0 and horizon > 0):
+            raise ValueError(f"ramp test: need threshold, sigma, reference and horizon > 0; got {threshold!r}, "
+                             f"{sigma!r}, {reference!r}, {horizon!r}")
+        self.sample_hz, self.threshold, self.sigma = float(sample_hz), float(threshold), float(sigma)
+        self._reference = max(2, round(reference * sample_hz))
+        self._onsets = max(2, round(horizon * sample_hz))
+        size = self._reference + self._onsets
+        # candidate j: onset `after[j]` samples before the newest, its window `after[j] + reference` samples long
+        after = np.arange(2, self._onsets + 1, dtype=float)
+        n = after + self._reference
+        sum_x = after * (after - 1) / 2 / self.sample_hz               # x = 0, 1/f, ..., (m - 1)/f after onset
+        sum_xx = (after - 1) * after * (2 * after - 1) / 6 / self.sample_hz**2
+        self._after, self._n, self._sum_x = after.astype(int), n, sum_x
+        self._s_xx = sum_xx - sum_x**2 / n
+        self._size, self._index = size, np.arange(size, dtype=float)     # samples before the newest
+        self._ring = np.zeros(2 * size)         # each sample stored twice, so the last `size` are one slice
+        self.reset()
+
+    def reset(self) -> None:
+        self._count = 0
+        self.statistic = 0.0
+        self.alarm, self.alarm_time = False, None
+
+    def update(self, residual: float, time: float, armed: bool = True) -> bool:
+        slot = self._count % self._size
+        self._ring[slot] = self._ring[slot + self._size] = residual
+        self._count += 1
+        if not armed:                           # the window refills with armed samples only
+            self._count, self.statistic = 0, 0.0
+            return self.alarm
+        if self._count < self._size:
+            self.statistic = 0.0
+            return self.alarm
+        self.statistic = self._z(slot)
+        if not self.alarm and self.statistic >= self.threshold:
+            self.alarm, self.alarm_time = True, float(time)
+        return self.alarm
+
+    def _z(self, newest: int) -> float:
+        r = self._ring[newest + self._size:newest:-1]                   # newest first
+        sum_r, sum_ir = np.cumsum(r), np.cumsum(self._index * r)
+        m, n = self._after, self._n
+        # sum over the m newest samples of x_i r_i, x_i = (m - 1 - index_i) / f
+        sum_xr = ((m - 1) * sum_r[m - 1] - sum_ir[m - 1]) / self.sample_hz
+        s_xr = sum_xr - self._sum_x * sum_r[m + self._reference - 1] / n
+        slope = s_xr / self._s_xx
+        return float(np.max(-slope * np.sqrt(self._s_xx)) / self.sigma)
