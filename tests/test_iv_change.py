@@ -70,6 +70,7 @@ def synthetic_flight(seconds: float, step_time: float, seed: int = 0):
     Along x: a PD position loop with a lagged thrust tilt tracks a two-sine reference (other gains than
     the detector's reference model); v' = g tau - c (v - w), a_x = -c (v - w) + white noise, q = -tau_x'.
     w is coloured wind (first-order, 5 s, 0.1 m/s) on both axes. The mass steps 0.5 -> 1 kg at step_time.
+    The wind test's readings: level attitude, the ground velocity v, rotor speeds 0 (no rotor drag).
     """
     rng = np.random.default_rng(seed)
     g, kp, kd, k_att = 9.81, 1.2, 2.0, 9.0
@@ -85,16 +86,17 @@ def synthetic_flight(seconds: float, step_time: float, seed: int = 0):
         accel = -c * (v - w) + rng.normal(0.0, 0.01, 2)
         yield {"gyro": np.array([dtau[1], -dtau[0], 0.0]), "accel": np.array([*accel, -g]),
                "reference_position": np.array([*x_ref, -5.0]), "reference_velocity": np.array([*v_ref, 0.0]),
-               "reference_yaw": np.array([0.0])}, t
+               "reference_yaw": np.array([0.0]), "attitude": np.array([0.0, 0.0, 0.0, 1.0]),
+               "velocity": np.array([*v, 0.0]), "rotor_speed": np.zeros(4)}, t
         x, v, tau = x + DT * v, v + DT * (g * tau - c * (v - w)), tau + DT * dtau
         w = a_w * w + s_w * rng.normal(size=2)
 
 
 @pytest.mark.parametrize("step_time", [30.0, None])
 def test_synthetic_mass_step_is_detected_and_nothing_before(step_time):
-    """Default settings: c_hat stays within 5% of c and the CUSUM near 0 before the step; then c_hat
-    falls and the CUSUM (drift ~0.3 per s here, toward 0.8 c) crosses its threshold within 15 s."""
-    detector = IvChangeDetector(MASS, LAMBDA_1, DT)
+    """The IV test (default settings otherwise): c_hat stays within 5% of c and the CUSUM near 0 before the step;
+    then c_hat falls and the CUSUM (drift ~0.3 per s here, toward 0.8 c) crosses its threshold within 15 s."""
+    detector = IvChangeDetector(MASS, LAMBDA_1, DT, test="iv")
     ratio_before, cusum_before = [], []
     for readings, t in synthetic_flight(46.0, step_time or np.inf):
         detector.update(readings, t)
@@ -110,6 +112,32 @@ def test_synthetic_mass_step_is_detected_and_nothing_before(step_time):
         assert status["alarm"] and step_time + 5.0 < status["alarm_time"] < step_time + 15.0
         assert status["c_ratio"] < 0.6                            # c halves: 0.5 once the memory has forgotten
     assert status["isolated"] is None
+
+
+@pytest.mark.parametrize("step_time", [30.0, None])
+def test_wind_test_detects_the_synthetic_mass_step_within_seconds(step_time):
+    """The default (wind) test on the same flight: its CUSUM stays under a third of its threshold without
+    the step and crosses it within 3 s of it, while the IV CUSUM (published, not alarming) needs 5-15 s."""
+    detector = IvChangeDetector(MASS, LAMBDA_1, DT)
+    peak_before = 0.0
+    for readings, t in synthetic_flight(40.0, step_time or np.inf):
+        detector.update(readings, t)
+        if t < (step_time or np.inf):
+            peak_before = max(peak_before, detector.wind_cusum)
+    status = detector.status()
+    assert peak_before < detector.wind_threshold / 3
+    if step_time is None:
+        assert not status["alarm"]
+    else:
+        assert status["alarm"] and step_time < status["alarm_time"] < step_time + 3.0
+        assert status["cusum"] < detector.cusum_threshold       # the IV CUSUM has not got there yet
+
+
+def test_wind_test_settings_are_checked():
+    for bad in ({"test": "glr"}, {"mass_ratio": 1.0}, {"period": 0.0}, {"air_cutoff_hz": 300.0},
+                {"rotor_drag": (-1.0, 0.0)}):
+        with pytest.raises(ValueError):
+            IvChangeDetector(MASS, LAMBDA_1, DT, **bad)
 
 
 @pytest.mark.parametrize("seed", [1000, 1001])
@@ -144,7 +172,7 @@ def test_protocol_and_non_finite_readings():
     readings, t = next(synthetic_flight(1.0, np.inf))
     detector.update(readings, t)
     assert set(detector.outputs()) == set(detector.output_fields)
-    for key in ("gyro", "accel", "reference_position"):
+    for key in ("gyro", "accel", "reference_position", "attitude", "velocity", "rotor_speed"):
         bad = {**readings, key: np.array([0.0, np.nan, 0.0])}
         with pytest.raises(ValueError, match=key):
             detector.update(bad, t + DT)

@@ -77,6 +77,7 @@ from .base import AlarmLatch
 from .wrapper import DetectorWrapper
 
 READ_KEYS = ("gyro", "accel", "reference_position", "reference_velocity", "reference_yaw")
+WIND_TEST_KEYS = ("attitude", "velocity", "rotor_speed")   # read too by the wind test
 
 
 def drag_and_mass(params) -> tuple[float, float]:
@@ -259,6 +260,100 @@ class AccelBiasEstimate:
         return np.array((-self.bias[1] * dr, self.bias[0] * dr))
 
 
+class WindDragTest:
+    """The payload test on the air-relative drag, with the wind as a state: a CUSUM of the log-likelihood ratio
+    of two Kalman filters, one per mass hypothesis.
+
+    The accelerometer's x, y read the horizontal drag per mass (004 eq. 9, 17):
+    a_B = -(lambda(t) / m) [R^T (v - w)]_xy + b, with lambda(t) = lambda_1 + k (sum omega_i(t) - n omega_hover)
+    the body drag plus the rotors' drag k omega_i v at the measured rotor speeds, R the measured attitude, v the
+    measured (ground) velocity, w the wind (NED) and b the accelerometer bias. Given m it is linear in
+    x = [w_N, w_E, w_D, b_x, b_y]: z = a_B + (lambda / m) [R^T v]_xy = (lambda / m) [R^T]_xy w + b. Every
+    signal is low-passed by one filter before the products are formed (so the relation holds for the filtered
+    channels while w is slow against the filter) and the filters step every `period` s. The wind model
+    follows Dryden (004 eq. 14) in light turbulence: the horizontal components as random walks of intensity
+    `wind_intensity` (2 sigma^2 V / L of the first-order u filter, 3 sigma^2 V / L of the second-order v
+    filter, what their spectra tend to above V / L), the vertical one as a first-order process
+    (`vertical_sigma`, `vertical_time`: its L_w / V is ~2 s at low altitude); b constant with the prior
+    `bias_sigma`. H0: m = m_0; H1: m = `mass_ratio` m_0. Each filter gives the Gaussian log-likelihood of its
+    innovation nu, S: l_j = -0.5 (nu' S^-1 nu + log det S); the test is Page's CUSUM of l_1 - l_0,
+    g = max(0, g + l_1 - l_0), alarm when g > `wind_threshold` (Basseville & Nikiforov, Detection of Abrupt
+    Changes, 1993, ch. 2 for the CUSUM of log-likelihood ratios, Part II for the likelihood ratio of two
+    models' innovations; Gustafsson, Adaptive Filtering and Change Detection, 2000, for change detection with
+    Kalman filter banks). The turbulence sits in the test's noise model: a slow wind change is what both
+    filters predict, and what tells the masses apart is the drag's response to the flight's own speed changes,
+    faster than the turbulence, and the size of the accelerometer's response to the turbulence itself (a
+    heavier vehicle's is smaller).
+    Departures: both filters run from the start, not from each candidate change time (a two-model CUSUM, not
+    a GLR). Caveat: the log det S term makes the test rely on the turbulence intensity; in air much calmer
+    than the model's the smaller S of H1 wins and the test alarms (set `wind_intensity` and `vertical_sigma`
+    to the air flown).
+    """
+
+    def __init__(self, mass: float, lambda_1: float, rotor_drag: tuple, settings, dt: float):
+        s = settings
+        self.lambda_1, (self.k, self.hover_sum) = float(lambda_1), (float(v) for v in rotor_drag)
+        self.theta = (1.0 / mass, 1.0 / (s.mass_ratio * mass))
+        self.period = float(s.period)
+        fd = math.exp(-self.period / s.vertical_time)
+        self.F = np.diag((1.0, 1.0, fd, 1.0, 1.0))
+        self.Q = np.diag((s.wind_intensity * self.period, s.wind_intensity * self.period,
+                          s.vertical_sigma ** 2 * (1.0 - fd * fd), 0.0, 0.0))
+        self.R = s.accel_noise ** 2 * np.eye(2)
+        self.P0 = np.diag((s.wind_sigma ** 2, s.wind_sigma ** 2, s.vertical_sigma ** 2,
+                           s.bias_sigma ** 2, s.bias_sigma ** 2))
+        self._filter = (s.air_cutoff_hz, s.filter_order, float(dt))
+        self.reset()
+
+    def reset(self) -> None:
+        self.lowpass = LowPassBank(*self._filter)
+        self.x = [np.zeros(5), np.zeros(5)]
+        self.P = [self.P0.copy(), self.P0.copy()]
+        self.llr = 0.0              # l_1 - l_0 of the last filter step
+        self._next = None
+
+    def drag(self, rotor_speed) -> float:
+        """lambda(t): the body drag plus the rotors' k omega_i at the measured rotor speeds."""
+        return self.lambda_1 + (self.k * (sum(rotor_speed) - self.hover_sum) if self.k else 0.0)
+
+    def update(self, accel, attitude, velocity, rotor_speed, time: float) -> bool:
+        """Filter one reading; every `period` s step both Kalman filters. True when `llr` is new."""
+        qx, qy, qz, qw = attitude
+        lam = self.drag(rotor_speed)
+        # Rows x, y of R^T (the body x and y axes in NED), times lambda.
+        r0 = (lam * (1.0 - 2.0 * (qy * qy + qz * qz)), lam * 2.0 * (qx * qy + qz * qw),
+              lam * 2.0 * (qx * qz - qy * qw))
+        r1 = (lam * 2.0 * (qx * qy - qz * qw), lam * (1.0 - 2.0 * (qx * qx + qz * qz)),
+              lam * 2.0 * (qy * qz + qx * qw))
+        vn, ve, vd = velocity
+        u = np.array((accel[0], accel[1], r0[0] * vn + r0[1] * ve + r0[2] * vd,
+                      r1[0] * vn + r1[1] * ve + r1[2] * vd, *r0, *r1))
+        if self._next is None:
+            self.lowpass.start(u)
+            self._next = time
+        f = self.lowpass.step(u)
+        if time < self._next - 1e-9:
+            return False
+        self._next += self.period
+        a, lam_v, lam_r = f[0:2], f[2:4], f[4:10].reshape(2, 3)
+        ll = []
+        for j, theta in enumerate(self.theta):
+            x = self.F @ self.x[j]
+            P = self.F @ self.P[j] @ self.F.T + self.Q
+            H = np.hstack((theta * lam_r, np.eye(2)))
+            nu = a + theta * lam_v - H @ x
+            PHt = P @ H.T
+            S = H @ PHt + self.R
+            S_inv = np.linalg.inv(S)
+            K = PHt @ S_inv
+            self.x[j] = x + K @ nu
+            IKH = np.eye(5) - K @ H   # Joseph form, as the Kalman updates of `fdd/kalman.py`
+            self.P[j] = IKH @ P @ IKH.T + K @ self.R @ K.T
+            ll.append(-0.5 * (float(nu @ S_inv @ nu) + math.log(np.linalg.det(S))))
+        self.llr = ll[1] - ll[0]
+        return True
+
+
 @dataclass(frozen=True)
 class IvChangeSettings:
     """The parameters of `IvChangeDetector`; each `IvChangeDetector(..., **overrides)` keyword updates one."""
@@ -287,6 +382,17 @@ class IvChangeSettings:
     kd: float = 2.4                    # 1/s, its velocity gain
     k_att: float = 7.0                 # 1/s, its thrust-tilt lag
     k_yaw: float = 2.5                 # 1/s, its heading lag
+    test: str = "wind"                 # the alarm's test: "wind" (`WindDragTest`) or "iv" (the IV CUSUM)
+    mass_ratio: float = 1.6            # the wind test's alternative m_1 / m_0
+    wind_threshold: float = 14.0       # the wind test's CUSUM threshold (log-likelihood ratio)
+    wind_intensity: float = 0.05       # m^2/s^3, random-walk intensity of the horizontal wind
+    vertical_sigma: float = 0.42       # m/s, the vertical wind's standard deviation ...
+    vertical_time: float = 2.0         # s, ... and time constant
+    wind_sigma: float = 3.0            # m/s, prior of the horizontal wind
+    bias_sigma: float = 0.05           # m/s^2, prior of the accelerometer's x, y bias
+    accel_noise: float = 0.004         # m/s^2, the filtered accelerometer's noise at the test's rate
+    air_cutoff_hz: float = 2.0         # Hz, Butterworth low-pass of the wind test's channels
+    period: float = 0.1                # s, the wind test's filter step
 
 class IvChangeDetector:
     """Payload change detector of 004: IV estimate of c = lambda_1 / m from the residuals r1, r2 (29).
@@ -313,9 +419,11 @@ class IvChangeDetector:
 
     name = "iv_change"
     output_fields = {"J": (0.0, np.inf, (2,)), "residual": (-np.inf, np.inf, (2,)),
-                     "c_hat": (-np.inf, np.inf, (1,)), "cusum": (0.0, np.inf, (1,))}
+                     "c_hat": (-np.inf, np.inf, (1,)), "cusum": (0.0, np.inf, (1,)),
+                     "wind_cusum": (0.0, np.inf, (1,))}
 
-    def __init__(self, mass: float, lambda_1: float, dt: float, settings: IvChangeSettings | None = None, **overrides):
+    def __init__(self, mass: float, lambda_1: float, dt: float, settings: IvChangeSettings | None = None, *,
+                 rotor_drag: tuple = (0.0, 0.0), **overrides):
         s = self.settings = updated(settings or IvChangeSettings(), overrides, "iv_change")
         for label, value in (("mass", mass), ("lambda_1", lambda_1), ("dt", dt), ("T", s.T)):
             if not (math.isfinite(value) and value > 0):
@@ -331,6 +439,17 @@ class IvChangeDetector:
         if not (0.0 < s.cusum_ratio < 1.0 and s.cusum_threshold > 0.0):
             raise ValueError("IvChangeDetector: need 0 < cusum_ratio < 1 and cusum_threshold > 0, got "
                              f"{s.cusum_ratio!r}, {s.cusum_threshold!r}")
+        if s.test not in ("wind", "iv"):
+            raise ValueError(f"IvChangeDetector: test must be 'wind' or 'iv', got {s.test!r}")
+        wind_values = {name: getattr(s, name) for name in (
+            "mass_ratio", "wind_threshold", "wind_intensity", "vertical_sigma", "vertical_time", "wind_sigma",
+            "bias_sigma", "accel_noise", "air_cutoff_hz", "period")}
+        if not (all(math.isfinite(v) and v > 0.0 for v in wind_values.values()) and s.mass_ratio > 1.0
+                and s.air_cutoff_hz < 0.5 / dt and len(rotor_drag) == 2
+                and all(math.isfinite(v) and v >= 0.0 for v in rotor_drag)):
+            raise ValueError("IvChangeDetector: the wind test needs finite values > 0, mass_ratio > 1, "
+                             "air_cutoff_hz below the Nyquist rate and rotor_drag = (k >= 0, n omega_hover >= 0); "
+                             f"got {wind_values}, rotor_drag={rotor_drag!r}")
         self.c = c = lambda_1 / mass
         self.dt, self.T = float(dt), float(s.T)
         self.theta = (-2.0 + c * s.T, 1.0 - c * s.T, c * GRAVITY * s.T * s.T)   # 004 eq. (29)
@@ -351,6 +470,8 @@ class IvChangeDetector:
         self.reference_model = ReferenceModel(c, self.dt, s.kp, s.kd, s.k_att, s.k_yaw)
         self.cost = IvCost(s.lam, s.n_w, (2, 3))
         self.estimate = IvEstimate(s.lam_estimate)
+        self.test, self.wind_threshold = s.test, float(s.wind_threshold)
+        self.wind_test = WindDragTest(mass, lambda_1, rotor_drag, s, self.dt) if s.test == "wind" else None
         self.latch = AlarmLatch()
         self.reset()
 
@@ -359,7 +480,8 @@ class IvChangeDetector:
         """From a vehicle parameter set (attributes read by name: mass, body_drag, rotor_drag_coefficient,
         hover_omega, rotor_positions); `dt` is the sample period of the readings."""
         lambda_1, mass = drag_and_mass(params)
-        return cls(mass, lambda_1, dt, **kwargs)
+        rotor_drag = (params.rotor_drag_coefficient, len(params.rotor_positions) * params.hover_omega)
+        return cls(mass, lambda_1, dt, rotor_drag=rotor_drag, **kwargs)
 
     # ------------------------------------------------------------------------------------- protocol
     def reset(self) -> None:
@@ -380,6 +502,9 @@ class IvChangeDetector:
         self.cusum = 0.0             # CUSUM g (s) of the IV increments toward c = cusum_ratio c_0
         self._z2_sum, self._z2_n = 0.0, 0   # instrument power over the warm-up (the CUSUM's unit)
         self._scale = None
+        self.wind_cusum = 0.0        # CUSUM of the wind test's log-likelihood ratio
+        if self.wind_test is not None:
+            self.wind_test.reset()
 
     def update(self, readings: dict, time: float, command=None) -> None:
         gyro, accel, position, velocity, yaw = (_finite(readings, key) for key in READ_KEYS)
@@ -402,6 +527,13 @@ class IvChangeDetector:
         if self._last is None:
             self._t0 = time
             self.lowpass.start(u)
+        if self.wind_test is not None:
+            attitude, ground_velocity, rotor_speed = (_finite(readings, key) for key in WIND_TEST_KEYS)
+            if (self.wind_test.update(accel, attitude, ground_velocity, rotor_speed, time)
+                    and time - self._t0 >= self.warmup - 1e-9):
+                self.wind_cusum = max(0.0, self.wind_cusum + self.wind_test.llr)
+                if self.wind_cusum > self.wind_threshold:
+                    self.latch.trigger(time)
         f = self.lowpass.step(u)
         t_last, f_last = self._last or (time, f)
         # Resample onto the model's grid t0 + k T by linear interpolation (the signals are slow by now).
@@ -412,13 +544,14 @@ class IvChangeDetector:
 
     def outputs(self) -> dict:
         return {"J": self.J.copy(), "residual": self.residual.copy(), "c_hat": np.array([self.c_hat]),
-                "cusum": np.array([self.cusum])}
+                "cusum": np.array([self.cusum]), "wind_cusum": np.array([self.wind_cusum])}
 
     def status(self) -> dict:
         bias = [0.0, 0.0] if self.accel_bias is None else self.accel_bias.bias.tolist()
         return {**self.latch.status(), "J": self.J.tolist(), "c_hat": self.c_hat, "c_nominal": self.c,
                 "accel_bias": bias,
                 "c_ratio": self.c_hat / self.c, "cusum": self.cusum, "cusum_threshold": self.cusum_threshold,
+                "wind_cusum": self.wind_cusum, "wind_threshold": self.wind_threshold,
                 "ratio_threshold": self.ratio_threshold, "threshold": self.threshold}
 
     # ------------------------------------------------------------------------------------- model
@@ -467,7 +600,7 @@ class IvChangeDetector:
         # power zeta.zeta over the warm-up; g = max(0, g + e); alarm when g > cusum_threshold (s).
         e = T * (self.cusum_ratio * float(kz @ phi) - float(kz @ y) / self.c) / self._scale
         self.cusum = max(0.0, self.cusum + e)
-        if self.cusum > self.cusum_threshold:
+        if self.test == "iv" and self.cusum > self.cusum_threshold:
             self.latch.trigger(t_k)
         if self.ratio_threshold is not None and excited and self.c_hat < self.ratio_threshold * self.c:
             if self._below_since is None:
