@@ -116,9 +116,11 @@ def test_synthetic_mass_step_is_detected_and_nothing_before(step_time):
 
 @pytest.mark.parametrize("step_time", [30.0, None])
 def test_wind_test_detects_the_synthetic_mass_step_within_seconds(step_time):
-    """The default (wind) test on the same flight: its CUSUM stays under a third of its threshold without
-    the step and crosses it within 3 s of it, while the IV CUSUM (published, not alarming) needs 5-15 s."""
-    detector = IvChangeDetector(MASS, LAMBDA_1, DT)
+    """The wind test on the same flight, its wind model set to the flight's (first-order, 5 s, 0.1 m/s: random-walk
+    intensity 2 sigma^2 / tau = 0.004 m^2/s^3, no vertical wind): its CUSUM stays under a third of its
+    threshold without the step and crosses it within 3 s of it, while the IV CUSUM (published, not alarming)
+    needs 5-15 s."""
+    detector = IvChangeDetector(MASS, LAMBDA_1, DT, wind_intensity=0.004, vertical_sigma=0.001)
     peak_before = 0.0
     for readings, t in synthetic_flight(40.0, step_time or np.inf):
         detector.update(readings, t)

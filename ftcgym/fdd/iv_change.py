@@ -8,7 +8,17 @@ instruments come from a model driven by the reference only (Sec. 4.2) and theref
 with the wind. `SixDofResidual` is the plain simulation-model residual of Sec. 4.1, which the wind
 masks; it is here for comparison.
 
-Where this departs from the paper, and why (ftcgym's square task, 004 Sec. 5.1; the measurements behind each
+The alarm comes from a second test beside the paper's, `WindDragTest` (default `test="wind"`): the
+accelerometer's drag per mass against the measured attitude, ground velocity and rotor speeds, with the wind
+as a Kalman-filter state modelled on Dryden turbulence (004 eq. 14) and a CUSUM of the log-likelihood ratio of
+two filters, one per mass. Why: slow Dryden turbulence (L_u / V ~ 46 s) biases the IV estimate of c over the
+same 5-15 s the mass change needs to show in it (below), and no threshold on the IV statistics kept both the
+misses and the false alarms away; in the wind test the turbulence is part of the noise model. It reads three
+more observations than (28) needs (`attitude`, `velocity`, `rotor_speed`), so it is no longer sensor-to-sensor
+in the paper's sense; it relies on the turbulence intensity it is given (`WindDragTest`, caveat). The IV estimate,
+its CUSUM and J (30) are still computed and published; `test="iv"` makes the IV CUSUM the alarm again.
+
+Where the IV part departs from the paper, and why (ftcgym's square task, 004 Sec. 5.1; the measurements behind each
 choice are in docs/measurements.md, 'Tuning record: fdd/iv_change.py'):
 - The test statistic is the IV *estimate* of c, not the IV cost J (30). (29) is linear in c, so the IV
   estimator of c alone is c_hat = sum lam^(t-i) zeta y / sum lam^(t-i) zeta phi_c (`IvEstimate`), with
@@ -271,23 +281,24 @@ class WindDragTest:
     x = [w_N, w_E, w_D, b_x, b_y]: z = a_B + (lambda / m) [R^T v]_xy = (lambda / m) [R^T]_xy w + b. Every
     signal is low-passed by one filter before the products are formed (so the relation holds for the filtered
     channels while w is slow against the filter) and the filters step every `period` s. The wind model
-    follows Dryden (004 eq. 14) in light turbulence: the horizontal components as random walks of intensity
-    `wind_intensity` (2 sigma^2 V / L of the first-order u filter, 3 sigma^2 V / L of the second-order v
-    filter, what their spectra tend to above V / L), the vertical one as a first-order process
-    (`vertical_sigma`, `vertical_time`: its L_w / V is ~2 s at low altitude); b constant with the prior
-    `bias_sigma`. H0: m = m_0; H1: m = `mass_ratio` m_0. Each filter gives the Gaussian log-likelihood of its
-    innovation nu, S: l_j = -0.5 (nu' S^-1 nu + log det S); the test is Page's CUSUM of l_1 - l_0,
-    g = max(0, g + l_1 - l_0), alarm when g > `wind_threshold` (Basseville & Nikiforov, Detection of Abrupt
-    Changes, 1993, ch. 2 for the CUSUM of log-likelihood ratios, Part II for the likelihood ratio of two
-    models' innovations; Gustafsson, Adaptive Filtering and Change Detection, 2000, for change detection with
-    Kalman filter banks). The turbulence sits in the test's noise model: a slow wind change is what both
-    filters predict, and what tells the masses apart is the drag's response to the flight's own speed changes,
-    faster than the turbulence, and the size of the accelerometer's response to the turbulence itself (a
-    heavier vehicle's is smaller).
-    Departures: both filters run from the start, not from each candidate change time (a two-model CUSUM, not
-    a GLR). Caveat: the log det S term makes the test rely on the turbulence intensity; in air much calmer
-    than the model's the smaller S of H1 wins and the test alarms (set `wind_intensity` and `vertical_sigma`
-    to the air flown).
+    follows Dryden (004 eq. 14) in 004 Sec. 5.1's light turbulence: the horizontal components as random walks
+    of intensity `wind_intensity`, what the spectra tend to above V / L (2 sigma_u^2 V / L_u = 0.052 m^2/s^3 for
+    the first-order u filter, 3 sigma_v^2 V / L_v = 0.095 for the second-order v filter, with V = 1.41 m/s, the
+    airspeed `models/wind.py` scales them with: the mean wind's), the vertical one as a first-order process
+    (`vertical_sigma` = sigma_w, `vertical_time` = L_w / V = 2 s); b constant with the prior `bias_sigma`.
+    H0: m = m_0; H1: m = `mass_ratio` m_0. Each filter gives the Gaussian log-likelihood of its innovation
+    nu, S: l_j = -0.5 (nu' S^-1 nu + log det S); the test is Page's CUSUM of l_1 - l_0, g = max(0, g + l_1 - l_0),
+    alarm when g > `wind_threshold` (Basseville & Nikiforov, Detection of Abrupt Changes, 1993: ch. 2 for the
+    CUSUM of log-likelihood ratios, Part II for the likelihood ratio of two models' innovations; Gustafsson,
+    Adaptive Filtering and Change Detection, 2000, for change detection with Kalman filter banks). The
+    turbulence sits in the test's noise model: a slow wind change is what both filters predict. What tells the
+    masses apart is the drag's response to the flight's own speed changes, faster than the turbulence, and the
+    size of the accelerometer's response to the turbulence itself (a heavier vehicle's is smaller: the log det S
+    term).
+    Departure: both filters run from the start, not from each candidate change time (a two-model CUSUM, not a
+    GLR). Caveat: through log det S the test relies on the turbulence intensity it is given; in air much
+    calmer than the model's, H1's smaller S wins and the test alarms (set `wind_intensity` and
+    `vertical_sigma` to the air flown; docs/measurements.md, 'Tuning record: fdd/iv_change.py').
     """
 
     def __init__(self, mass: float, lambda_1: float, rotor_drag: tuple, settings, dt: float):
@@ -402,8 +413,14 @@ class IvChangeDetector:
     theta = [-2 + cT, 1 - cT, c g T^2] (29) at the nominal mass, lam and N_w (30).
     Outputs: the IV costs J1, J2 of (30) (`J`, with the paper's lam and N_w), the residuals r1, r2 (29)
     at the nominal c, the IV estimate `c_hat` (`IvEstimate`, forgetting factor `lam_estimate`) and the
-    CUSUM statistic `cusum` (s).
-    Alarm: the one-sided CUSUM `cusum` of the IV increments toward c = `cusum_ratio` c_0 exceeds
+    CUSUM statistic `cusum` (s), and the wind test's CUSUM `wind_cusum`.
+    Alarm (`test="wind"`, the default): the CUSUM `wind_cusum` of `WindDragTest`'s log-likelihood ratio exceeds
+    `wind_threshold`, counted from `warmup` s after the first sample; the test reads `attitude`, `velocity` and
+    `rotor_speed` too, and `rotor_drag` = (k, n omega_hover) gives the rotors' part of the drag
+    (`from_params` fills it in). `mass_ratio` and `wind_threshold` were chosen on recorded tuning flights;
+    `wind_intensity`, `vertical_sigma` and `vertical_time` come from 004 Sec. 5.1's light turbulence
+    (`WindDragTest`), `accel_noise` is the residual of the drag model with the simulated wind on a tuning flight.
+    Alarm with `test="iv"`: the one-sided CUSUM `cusum` of the IV increments toward c = `cusum_ratio` c_0 exceeds
     `cusum_threshold` (seconds of typical excitation), counted from `warmup` s after the first sample.
     Optional (off by default): c_hat / c_0 < `ratio_threshold` for `alarm_hold` s while the instruments'
     excitation D is at least `min_excitation` times its peak so far. A heavier vehicle lowers c (twice
