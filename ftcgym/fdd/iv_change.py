@@ -15,8 +15,9 @@ two filters, one per mass. Why: slow Dryden turbulence (L_u / V ~ 46 s) biases t
 same 5-15 s the mass change needs to show in it (below), and no threshold on the IV statistics kept both the
 misses and the false alarms away; in the wind test the turbulence is part of the noise model. It reads three
 more observations than (28) needs (`attitude`, `velocity`, `rotor_speed`), so it is no longer sensor-to-sensor
-in the paper's sense; it relies on the turbulence intensity it is given (`WindDragTest`, caveat). The IV estimate,
-its CUSUM and J (30) are still computed and published; `test="iv"` makes the IV CUSUM the alarm again.
+in the paper's sense. It picks the turbulence intensity, up to 004's light turbulence, from the fault-free
+hypothesis' fit (`WindDragTest`). The IV estimate, its CUSUM and J (30) are still computed and published;
+`test="iv"` makes the IV CUSUM the alarm again.
 
 Where the IV part departs from the paper, and why (ftcgym's square task, 004 Sec. 5.1; the measurements behind each
 choice are in docs/measurements.md, 'Tuning record: fdd/iv_change.py'):
@@ -295,40 +296,55 @@ class WindDragTest:
     masses apart is the drag's response to the flight's own speed changes, faster than the turbulence, and the
     size of the accelerometer's response to the turbulence itself (a heavier vehicle's is smaller: the log det S
     term).
-    Departure: both filters run from the start, not from each candidate change time (a two-model CUSUM, not a
-    GLR). Caveat: through log det S the test relies on the turbulence intensity it is given; in air much
-    calmer than the model's, H1's smaller S wins and the test alarms (set `wind_intensity` and
-    `vertical_sigma` to the air flown; docs/measurements.md, 'Tuning record: fdd/iv_change.py').
+    The turbulence intensity: that last part holds only at the intensity the air has (calm air also answers
+    less, and with the light intensity alone the test alarmed in calm air). So the pair of filters runs at each
+    of `turbulence_levels` times the light intensities (`wind_intensity` and `vertical_sigma` squared), and the
+    CUSUM takes the increment of the level whose H0 filter has the highest log-likelihood over the last
+    `level_memory` s (exponential forgetting, counted from `level_settle` s after the first sample, the light
+    level before): the intensity as a nuisance parameter, estimated under H0 by maximum likelihood from a
+    grid. No level is above the light one: the fault-free flights' likelihood prefers 4x (the wind state also
+    takes up model error), where the log det term favours H1 throughout.
+    Departure: the filters run from the start, not from each candidate change time (a two-model CUSUM, not a
+    GLR).
     """
 
     def __init__(self, mass: float, lambda_1: float, rotor_drag: tuple, settings, dt: float):
         s = settings
         self.lambda_1, (self.k, self.hover_sum) = float(lambda_1), (float(v) for v in rotor_drag)
-        self.theta = (1.0 / mass, 1.0 / (s.mass_ratio * mass))
-        self.period = float(s.period)
+        self.levels = tuple(float(v) for v in s.turbulence_levels)
+        self.period, self.settle = float(s.period), float(s.level_settle)
+        self.forget = math.exp(-self.period / s.level_memory)
+        # One filter per (turbulence level, hypothesis), stacked: index 2 i + j for level i, mass hypothesis j.
+        self.theta = np.tile((1.0 / mass, 1.0 / (s.mass_ratio * mass)), len(self.levels))
         fd = math.exp(-self.period / s.vertical_time)
-        self.F = np.diag((1.0, 1.0, fd, 1.0, 1.0))
-        self.Q = np.diag((s.wind_intensity * self.period, s.wind_intensity * self.period,
-                          s.vertical_sigma ** 2 * (1.0 - fd * fd), 0.0, 0.0))
-        self.R = s.accel_noise ** 2 * np.eye(2)
-        self.P0 = np.diag((s.wind_sigma ** 2, s.wind_sigma ** 2, s.vertical_sigma ** 2,
-                           s.bias_sigma ** 2, s.bias_sigma ** 2))
+        f = np.array((1.0, 1.0, fd, 1.0, 1.0))
+        self.FF = np.outer(f, f)                      # F P F' = P * FF for the diagonal F
+        self.f = f
+        self.Q = np.array([np.diag((c * s.wind_intensity * self.period, c * s.wind_intensity * self.period,
+                                    c * s.vertical_sigma ** 2 * (1.0 - fd * fd), 0.0, 0.0))
+                           for c in self.levels for _ in range(2)])
+        self.r = s.accel_noise ** 2
+        self.P0 = np.array([np.diag((s.wind_sigma ** 2, s.wind_sigma ** 2, c * s.vertical_sigma ** 2,
+                                     s.bias_sigma ** 2, s.bias_sigma ** 2)) for c in self.levels for _ in range(2)])
+        self._eye2 = np.broadcast_to(np.eye(2), (len(self.theta), 2, 2))
         self._filter = (s.air_cutoff_hz, s.filter_order, float(dt))
         self.reset()
 
     def reset(self) -> None:
         self.lowpass = LowPassBank(*self._filter)
-        self.x = [np.zeros(5), np.zeros(5)]
-        self.P = [self.P0.copy(), self.P0.copy()]
-        self.llr = 0.0              # l_1 - l_0 of the last filter step
-        self._next = None
+        self.x = np.zeros((len(self.theta), 5))
+        self.P = self.P0.copy()
+        self.fit = np.zeros(len(self.levels))   # H0's log-likelihood per level, forgetting over `level_memory`
+        self.level = len(self.levels) - 1       # the level in use (the largest until `level_settle` + 1 s)
+        self.llr = 0.0                          # l_1 - l_0 of the last filter step, at `level`
+        self._start = self._next = None
 
     def drag(self, rotor_speed) -> float:
         """lambda(t): the body drag plus the rotors' k omega_i at the measured rotor speeds."""
         return self.lambda_1 + (self.k * (sum(rotor_speed) - self.hover_sum) if self.k else 0.0)
 
     def update(self, accel, attitude, velocity, rotor_speed, time: float) -> bool:
-        """Filter one reading; every `period` s step both Kalman filters. True when `llr` is new."""
+        """Filter one reading; every `period` s step the Kalman filters. True when `llr` is new."""
         qx, qy, qz, qw = attitude
         lam = self.drag(rotor_speed)
         # Rows x, y of R^T (the body x and y axes in NED), times lambda.
@@ -341,27 +357,34 @@ class WindDragTest:
                       r1[0] * vn + r1[1] * ve + r1[2] * vd, *r0, *r1))
         if self._next is None:
             self.lowpass.start(u)
-            self._next = time
+            self._start = self._next = time
         f = self.lowpass.step(u)
         if time < self._next - 1e-9:
             return False
         self._next += self.period
         a, lam_v, lam_r = f[0:2], f[2:4], f[4:10].reshape(2, 3)
-        ll = []
-        for j, theta in enumerate(self.theta):
-            x = self.F @ self.x[j]
-            P = self.F @ self.P[j] @ self.F.T + self.Q
-            H = np.hstack((theta * lam_r, np.eye(2)))
-            nu = a + theta * lam_v - H @ x
-            PHt = P @ H.T
-            S = H @ PHt + self.R
-            S_inv = np.linalg.inv(S)
-            K = PHt @ S_inv
-            self.x[j] = x + K @ nu
-            IKH = np.eye(5) - K @ H   # Joseph form, as the Kalman updates of `fdd/kalman.py`
-            self.P[j] = IKH @ P @ IKH.T + K @ self.R @ K.T
-            ll.append(-0.5 * (float(nu @ S_inv @ nu) + math.log(np.linalg.det(S))))
-        self.llr = ll[1] - ll[0]
+        theta = self.theta
+        # H_b = [theta_b lambda R^T_xy, I]; z_b = a + theta_b lambda [R^T v]_xy.
+        H = np.concatenate((theta[:, None, None] * lam_r, self._eye2), axis=2)
+        x = self.x * self.f
+        P = self.P * self.FF + self.Q
+        nu = a + theta[:, None] * lam_v - np.einsum("bij,bj->bi", H, x)
+        PHt = P @ H.transpose(0, 2, 1)
+        S = H @ PHt
+        S[:, 0, 0] += self.r
+        S[:, 1, 1] += self.r
+        S_inv = np.linalg.inv(S)
+        K = PHt @ S_inv
+        self.x = x + np.einsum("bij,bj->bi", K, nu)
+        IKH = np.eye(5) - K @ H   # Joseph form, as the Kalman updates of `fdd/kalman.py`
+        self.P = IKH @ P @ IKH.transpose(0, 2, 1) + self.r * (K @ K.transpose(0, 2, 1))
+        ll = -0.5 * (np.einsum("bi,bij,bj->b", nu, S_inv, nu) + np.log(np.linalg.det(S)))
+        ll = ll.reshape(-1, 2)
+        if time - self._start >= self.settle + 1.0:
+            self.level = int(np.argmax(self.fit))
+        if time - self._start >= self.settle - 1e-9:
+            self.fit = self.forget * self.fit + ll[:, 0]
+        self.llr = float(ll[self.level, 1] - ll[self.level, 0])
         return True
 
 
@@ -404,6 +427,9 @@ class IvChangeSettings:
     accel_noise: float = 0.004         # m/s^2, the filtered accelerometer's noise at the test's rate
     air_cutoff_hz: float = 2.0         # Hz, Butterworth low-pass of the wind test's channels
     period: float = 0.1                # s, the wind test's filter step
+    turbulence_levels: tuple = (0.0625, 0.25, 1.0)  # the wind test's turbulence intensities, x the above
+    level_memory: float = 30.0         # s, memory of the likelihood that picks the level ...
+    level_settle: float = 5.0          # s, ... counted from this long after the first sample
 
 class IvChangeDetector:
     """Payload change detector of 004: IV estimate of c = lambda_1 / m from the residuals r1, r2 (29).
@@ -417,7 +443,8 @@ class IvChangeDetector:
     Alarm (`test="wind"`, the default): the CUSUM `wind_cusum` of `WindDragTest`'s log-likelihood ratio exceeds
     `wind_threshold`, counted from `warmup` s after the first sample; the test reads `attitude`, `velocity` and
     `rotor_speed` too, and `rotor_drag` = (k, n omega_hover) gives the rotors' part of the drag
-    (`from_params` fills it in). `mass_ratio` and `wind_threshold` were chosen on recorded tuning flights;
+    (`from_params` fills it in). `turbulence_levels`, `level_memory` and `level_settle` set its choice of
+    turbulence intensity. `mass_ratio` and `wind_threshold` were chosen on recorded tuning flights;
     `wind_intensity`, `vertical_sigma` and `vertical_time` come from 004 Sec. 5.1's light turbulence
     (`WindDragTest`), `accel_noise` is the residual of the drag model with the simulated wind on a tuning flight.
     Alarm with `test="iv"`: the one-sided CUSUM `cusum` of the IV increments toward c = `cusum_ratio` c_0 exceeds
@@ -467,6 +494,14 @@ class IvChangeDetector:
             raise ValueError("IvChangeDetector: the wind test needs finite values > 0, mass_ratio > 1, "
                              "air_cutoff_hz below the Nyquist rate and rotor_drag = (k >= 0, n omega_hover >= 0); "
                              f"got {wind_values}, rotor_drag={rotor_drag!r}")
+        levels = s.turbulence_levels
+        if not (isinstance(levels, (tuple, list)) and len(levels) >= 1
+                and all(isinstance(v, (int, float)) and math.isfinite(v) and v > 0.0 for v in levels)
+                and math.isfinite(s.level_memory) and s.level_memory > 0.0
+                and math.isfinite(s.level_settle) and s.level_settle >= 0.0):
+            raise ValueError("IvChangeDetector: need turbulence_levels a non-empty sequence of numbers > 0, "
+                             f"level_memory > 0 and level_settle >= 0, got {levels!r}, {s.level_memory!r}, "
+                             f"{s.level_settle!r}")
         self.c = c = lambda_1 / mass
         self.dt, self.T = float(dt), float(s.T)
         self.theta = (-2.0 + c * s.T, 1.0 - c * s.T, c * GRAVITY * s.T * s.T)   # 004 eq. (29)
@@ -569,6 +604,7 @@ class IvChangeDetector:
                 "accel_bias": bias,
                 "c_ratio": self.c_hat / self.c, "cusum": self.cusum, "cusum_threshold": self.cusum_threshold,
                 "wind_cusum": self.wind_cusum, "wind_threshold": self.wind_threshold,
+                "wind_level": None if self.wind_test is None else self.wind_test.levels[self.wind_test.level],
                 "ratio_threshold": self.ratio_threshold, "threshold": self.threshold}
 
     # ------------------------------------------------------------------------------------- model
