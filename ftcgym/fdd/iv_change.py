@@ -1,4 +1,4 @@
-"""`IvChangeDetector`: payload (mass) change detection with a sensor-to-sensor model and an IV cost.
+"""`IvChangeDetector`: payload (mass) change detection: 004's sensor-to-sensor IV model and a wind-aware drag test.
 
 Ho, Hendeby, Enqvist, "A sensor-to-sensor model-based change detection approach for quadcopters"
 (004). The submodel (28) links the gyro's roll and pitch rates to the accelerometer's x and y
