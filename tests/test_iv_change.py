@@ -70,6 +70,7 @@ def synthetic_flight(seconds: float, step_time: float, seed: int = 0):
     Along x: a PD position loop with a lagged thrust tilt tracks a two-sine reference (other gains than
     the detector's reference model); v' = g tau - c (v - w), a_x = -c (v - w) + white noise, q = -tau_x'.
     w is coloured wind (first-order, 5 s, 0.1 m/s) on both axes. The mass steps 0.5 -> 1 kg at step_time.
+    The wind test's readings: level attitude, the ground velocity v, rotor speeds 0 (no rotor drag).
     """
     rng = np.random.default_rng(seed)
     g, kp, kd, k_att = 9.81, 1.2, 2.0, 9.0
@@ -85,16 +86,17 @@ def synthetic_flight(seconds: float, step_time: float, seed: int = 0):
         accel = -c * (v - w) + rng.normal(0.0, 0.01, 2)
         yield {"gyro": np.array([dtau[1], -dtau[0], 0.0]), "accel": np.array([*accel, -g]),
                "reference_position": np.array([*x_ref, -5.0]), "reference_velocity": np.array([*v_ref, 0.0]),
-               "reference_yaw": np.array([0.0])}, t
+               "reference_yaw": np.array([0.0]), "attitude": np.array([0.0, 0.0, 0.0, 1.0]),
+               "velocity": np.array([*v, 0.0]), "rotor_speed": np.zeros(4)}, t
         x, v, tau = x + DT * v, v + DT * (g * tau - c * (v - w)), tau + DT * dtau
         w = a_w * w + s_w * rng.normal(size=2)
 
 
 @pytest.mark.parametrize("step_time", [30.0, None])
 def test_synthetic_mass_step_is_detected_and_nothing_before(step_time):
-    """Default settings: c_hat stays within 5% of c and the CUSUM near 0 before the step; then c_hat
-    falls and the CUSUM (drift ~0.3 per s here, toward 0.8 c) crosses its threshold within 15 s."""
-    detector = IvChangeDetector(MASS, LAMBDA_1, DT)
+    """The IV test (default settings otherwise): c_hat stays within 5% of c and the CUSUM near 0 before the step;
+    then c_hat falls and the CUSUM (drift ~0.3 per s here, toward 0.8 c) crosses its threshold within 15 s."""
+    detector = IvChangeDetector(MASS, LAMBDA_1, DT, test="iv")
     ratio_before, cusum_before = [], []
     for readings, t in synthetic_flight(46.0, step_time or np.inf):
         detector.update(readings, t)
@@ -110,6 +112,36 @@ def test_synthetic_mass_step_is_detected_and_nothing_before(step_time):
         assert status["alarm"] and step_time + 5.0 < status["alarm_time"] < step_time + 15.0
         assert status["c_ratio"] < 0.6                            # c halves: 0.5 once the memory has forgotten
     assert status["isolated"] is None
+
+
+@pytest.mark.parametrize("step_time", [30.0, None])
+def test_wind_test_detects_the_synthetic_mass_step_within_seconds(step_time):
+    """The wind test (default settings) on the same flight, whose wind (first-order, 5 s, 0.1 m/s) is far calmer
+    than the light turbulence the test models: it takes one of its calmer turbulence levels, its CUSUM stays
+    under half its threshold without the step and crosses it within 3 s of it, while the IV CUSUM
+    (published, not alarming) needs 5-15 s."""
+    detector = IvChangeDetector(MASS, LAMBDA_1, DT)
+    peak_before = 0.0
+    for readings, t in synthetic_flight(40.0, step_time or np.inf):
+        detector.update(readings, t)
+        if t < (step_time or np.inf):
+            peak_before = max(peak_before, detector.wind_cusum)
+    status = detector.status()
+    assert peak_before < detector.wind_threshold / 2
+    if step_time is None:
+        assert not status["alarm"]
+    else:
+        assert status["alarm"] and step_time < status["alarm_time"] < step_time + 3.0
+        assert status["cusum"] < detector.cusum_threshold       # the IV CUSUM has not got there yet
+    assert detector.wind_test.level < len(detector.wind_test.levels) - 1   # a calmer level than the light one
+
+
+def test_wind_test_settings_are_checked():
+    for bad in ({"test": "glr"}, {"mass_ratio": 1.0}, {"period": 0.0}, {"air_cutoff_hz": 300.0},
+                {"rotor_drag": (-1.0, 0.0)}, {"turbulence_levels": ()}, {"turbulence_levels": (0.0, 1.0)},
+                {"level_memory": 0.0}):
+        with pytest.raises(ValueError):
+            IvChangeDetector(MASS, LAMBDA_1, DT, **bad)
 
 
 @pytest.mark.parametrize("seed", [1000, 1001])
@@ -144,7 +176,7 @@ def test_protocol_and_non_finite_readings():
     readings, t = next(synthetic_flight(1.0, np.inf))
     detector.update(readings, t)
     assert set(detector.outputs()) == set(detector.output_fields)
-    for key in ("gyro", "accel", "reference_position"):
+    for key in ("gyro", "accel", "reference_position", "attitude", "velocity", "rotor_speed"):
         bad = {**readings, key: np.array([0.0, np.nan, 0.0])}
         with pytest.raises(ValueError, match=key):
             detector.update(bad, t + DT)
@@ -157,7 +189,8 @@ def test_accelerometer_bias_estimate_removes_the_heading_step_error():
     """Calm air (mean wind only), heading changes, no fault, 36 s (three heading steps; seed 9000, where the
     error was diagnosed). The yaw coupling turns the accelerometer's bias with the body: without the
     estimate the CUSUM climbs to 3.6 (84% of its threshold) at the 27 s heading step, with it it stays
-    under 1 and the estimate lands within 0.03 m/s^2 of the simulated bias."""
+    under 1 and the estimate lands within 0.03 m/s^2 of the simulated bias. The wind test's CUSUM peaks at
+    5.2 (of 14): it takes its calmest turbulence level; held at the light level alone it alarmed at 23.2 s."""
     env = make_env(vehicle="mueller2014", wind={"mean": [1.0, -1.0, 0.0], "turbulence": "none"},
                    max_episode_seconds=36.0, task={"name": "square", "altitude": 8.0, "heading_changes": True})
     obs, info = env.reset(seed=9000)
@@ -165,11 +198,12 @@ def test_accelerometer_bias_estimate_removes_the_heading_step_error():
     policy.reset(obs, info)
     detectors = [IvChangeDetector.from_params(env.unwrapped.params, 1.0 / env.unwrapped.agent_hz, **kwargs)
                  for kwargs in ({}, {"accel_bias_prior": None})]
-    peaks = [0.0, 0.0]
+    peaks, wind_peak = [0.0, 0.0], 0.0
     while True:
         for i, detector in enumerate(detectors):
             detector.update(obs, info["time"])
             peaks[i] = max(peaks[i], detector.cusum)
+        wind_peak = max(wind_peak, detectors[0].wind_cusum)
         obs, _, terminated, truncated, info = env.step(policy.act(obs, info))
         if terminated or truncated:
             break
@@ -178,3 +212,4 @@ def test_accelerometer_bias_estimate_removes_the_heading_step_error():
     assert peaks[0] < 1.0 and peaks[1] > 3.0
     assert np.allclose(detectors[0].status()["accel_bias"], true_bias, atol=0.03)
     assert detectors[1].status()["accel_bias"] == [0.0, 0.0]
+    assert wind_peak < 0.6 * detectors[0].wind_threshold and not detectors[0].latch.alarm

@@ -6,9 +6,10 @@
 
 Flies the square task (with and without 90 deg heading changes) in light Dryden turbulence and a
 (1, -1, 0) m/s mean wind, mass 0.5 -> 1 kg between 40 and 42 s, with the nominal controller, and
-prints each seed's alarm time. The alarm rule (a CUSUM of the IV increments) and the prefilter were
-tuned on recorded episodes replayed offline (the detector does not act on the flight); report on seeds
-not used for tuning (those are listed in docs/measurements.md, 'Tuning record: fdd/iv_change.py').
+prints each seed's alarm time. The alarm rules (the wind test's CUSUM by default, the CUSUM of the IV
+increments with `test="iv"`) and the prefilter were tuned on recorded episodes replayed offline (the
+detector does not act on the flight); report on seeds not used for tuning (those are listed in
+docs/measurements.md, 'Tuning record: fdd/iv_change.py').
 `ftcgym bench` hashes its episode seeds from the base seed, so they differ from the env seeds given here.
 """
 from __future__ import annotations
@@ -127,7 +128,7 @@ def plot(seed: int, path: str, heading_changes: bool = False) -> str:
         ax_c.set_ylim(-0.2, 1.6)
         ax_c.set_ylabel(style.wrap("Drag per mass / nominal"))
         ax_c.set_title("IV estimate of c (forgetting factor 0.999)")
-        ax_g.plot(t, cusum, color=style.VERMILLION, label="CUSUM $g$ of the IV increments (the test statistic)")
+        ax_g.plot(t, cusum, color=style.VERMILLION, label="CUSUM $g$ of the IV increments (the alarm with test='iv')")
         ax_g.axhline(defaults.cusum_threshold, color=style.GREY, ls="--", lw=0.8, label="alarm threshold")
         if row["alarm_time"] is not None:
             for ax in (ax_c, ax_g):

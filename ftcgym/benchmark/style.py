@@ -130,6 +130,7 @@ DETECTOR_SIGNALS = {
     ("iv_change", "residual"): Signal("Sensor-to-sensor residual", "m/s²", ("x axis", "y axis")),
     ("iv_change", "c_hat"): Signal("IV estimate of drag per mass", "1/s"),
     ("iv_change", "cusum"): Signal("CUSUM statistic", "s"),
+    ("iv_change", "wind_cusum"): Signal("Wind-test CUSUM statistic", None),
     ("airdata_ekf", "airspeed"): Signal("EKF airspeed", "m/s", ("EKF estimate",)),
     ("airdata_ekf", "wind"): Signal("EKF wind estimate", "m/s", NED),
     ("airdata_ekf", "pitot_residual"): Signal("Pitot residual (pitot − EKF)", "m/s"),
