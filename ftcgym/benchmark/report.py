@@ -327,7 +327,8 @@ def plot_event(path: Path, episodes: list[dict], rate: float | None = None) -> P
     first = episodes[0]
     onset = first["trajectory"]["event"]["onset"]
     with style.paper():
-        figure = Figure(figsize=style.size(2 if len(columns) > 1 else 1, 0.55 + 0.95 * n_rows),
+        # two columns wide even for one episode: the legends right of the panels and the title need the width
+        figure = Figure(figsize=style.size(2, 0.55 + 0.95 * n_rows),
                         layout="constrained")
         grid = np.asarray(figure.subplots(n_rows, len(columns), sharex=True, sharey="row", squeeze=False))
         for column, (episode, panels) in enumerate(columns):
