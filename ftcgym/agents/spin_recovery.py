@@ -43,19 +43,20 @@ DEFAULT_RHO = {"mueller2014": 0.5}   # Mueller & D'Andrea's choice
 class SpinRecoveryGains:
     rho: float | None = None                   # force ratio of the equilibrium; None: DEFAULT_RHO / choose_rho
     # outer loop
-    position: tuple = (1.2, 1.2, 4.0)          # 1/s^2, acceleration per metre
-    velocity: tuple = (1.6, 1.6, 3.5)          # 1/s
+    position: tuple = (3.0, 3.0, 4.0)          # 1/s^2, acceleration per metre
+    velocity: tuple = (3.0, 3.0, 3.5)          # 1/s
     position_integral: tuple = (0.3, 0.3, 2.0)  # 1/s^3
     integral_limit: float = 2.0                # m/s^2
     integral_zone: float = 0.3                 # m, position error inside which the integral runs
-    max_axis_tilt_deg: float = 20.0            # n_des from vertical
-    max_horizontal_speed: float = 2.0          # m/s, cap on the velocity command
+    max_axis_tilt_deg: float = 25.0            # n_des from vertical
+    max_horizontal_speed: float = 5.0          # m/s, cap on the velocity command
     gyro_cutoff_hz: float = 60.0               # first-order low-pass against motor vibration
     # inner loop (ScheduledAxisLqr)
     schedule_power: float = 2.0                # target axis leans toward n_bar as (r / r_bar)^power
     boost_until: float = 0.5                   # below this share of r_bar the adjacent pair runs flat out
     arrest_rate: float | None = None           # rad/s: above this roll/pitch rate the boost damps it first
     arrest_gain: float = 14.0                  # 1/s, rate-damping gain of the arrest (see ScheduledAxisLqr.arrest)
+    arrest_attitude_gain: float = 0.0          # 1/s, rate per radian of thrust-axis error the arrest steers to
     lqr_axis_weight: float = 1000.0            # 1/rad^2 on n_x, n_y errors
     lqr_axis_floor: float = 1.0                # share of the axis weight at r = 0, rising as (r / r_bar)^2
     lqr_rate_weight: float = 5.0               # s^2/rad^2 on p, q errors
@@ -75,7 +76,8 @@ class SpinRecoveryGains:
 #: (`quadrotor_control.VEHICLE_GAINS`) it also boosts to 0.6 r_bar. Chosen on tuning flights; see
 #: docs/measurements.md, 'Tuning record: agents/spin_recovery.py'.
 VEHICLE_GAINS = {"bebop2": {"balance_idle": True, "lqr_opposite_weight": 1000.0, "lqr_axis_floor": 0.01,
-                            "arrest_rate": 1.0, "boost_until": 0.6}}
+                            "arrest_rate": 1.0, "boost_until": 0.6, "arrest_attitude_gain": 4.0,
+                            "position": (4.0, 4.0, 6.0), "velocity": (3.5, 3.5, 4.5), "max_axis_tilt_deg": 30.0}}
 
 
 def gains_for(params: QuadrotorParams) -> SpinRecoveryGains:
