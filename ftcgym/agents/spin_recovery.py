@@ -9,7 +9,12 @@ spin about, seen in the body; its x and y components are driven to those of the 
 Per agent step:
 1. Outer loop (`_force_command`): position PD + integral on the centre of the small circle the spinning
    vehicle flies -> desired force F = m (a - g) -> n_des = F / |F| (tilt-limited) and the collective
-   thrust from the vertical balance T R_33 = -F_z.
+   thrust from the vertical balance T R_33 = -F_z. The PD is a cascade, velocity command k_p / k_d e (capped)
+   then a = k_d (v_cmd - v) = k_p e - k_d v, so s^2 + k_d s + k_p: horizontally k_p = 3/s^2, k_d = 3/s
+   (poles -1.5 +- 0.87j, damping 0.87), on bebop2 4 and 3.5 (-1.75 +- 0.97j, 0.87); the horizontal command
+   is capped at 5 m/s and the tilt of n_des at 25 deg (bebop2 30 deg).
+   No acceleration feed-forward: the hover and goto set-points are steps, the observation carries no
+   reference acceleration.
 2. Inner loop (`axis_lqr.ScheduledAxisLqr`): LQR on the linearised body-frame dynamics of (p, q, n_x, n_y) as
    Mueller & D'Andrea, plus the rotor forces' lag, gain-scheduled on the yaw rate while the spin builds
    up. Not the model inversion (NDI) of Sun et al.'s output: it holds the equilibrium, but it cancels the
