@@ -185,6 +185,11 @@ class ScheduledAxisLqr:
         if n_body is not None and self.gains.arrest_attitude_gain:
             # body rate that turns the thrust axis -z toward n_des: k (-z) x n_B = k (n_y, -n_x, 0)
             rate_target = self.gains.arrest_attitude_gain * np.array([n_body[1], -n_body[0]])
+            fade = self.gains.arrest_attitude_fade
+            if fade is not None:
+                # toward zero as the spin nears the hand-over to the LQR: it takes over with the rate damped
+                share = abs(float(rates[2])) / (self.gains.boost_until * abs(self.r_bar))
+                rate_target *= min(max((1.0 - share) / fade, 0.0), 1.0)
         desired = -self.gains.arrest_gain * (rates[:2] - rate_target)
         differential = float(per_newton @ desired) / float(per_newton @ per_newton)
         forces = np.full(3, self.f_min)

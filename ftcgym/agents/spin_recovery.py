@@ -53,8 +53,9 @@ class SpinRecoveryGains:
     position_integral: tuple = (0.3, 0.3, 2.0)  # 1/s^3
     integral_limit: float = 2.0                # m/s^2
     integral_zone: float = 0.3                 # m, position error inside which the integral runs
-    max_axis_tilt_deg: float = 25.0            # n_des from vertical
+    max_axis_tilt_deg: float = 20.0            # n_des from vertical
     max_horizontal_speed: float = 5.0          # m/s, cap on the velocity command
+    axis_slew_rate_deg: float | None = 60.0    # deg/s, fastest turn of the commanded axis n_des; None: no limit
     gyro_cutoff_hz: float = 60.0               # first-order low-pass against motor vibration
     # inner loop (ScheduledAxisLqr)
     schedule_power: float = 2.0                # target axis leans toward n_bar as (r / r_bar)^power
@@ -62,6 +63,7 @@ class SpinRecoveryGains:
     arrest_rate: float | None = None           # rad/s: above this roll/pitch rate the boost damps it first
     arrest_gain: float = 14.0                  # 1/s, rate-damping gain of the arrest (see ScheduledAxisLqr.arrest)
     arrest_attitude_gain: float = 0.0          # 1/s, rate per radian of thrust-axis error the arrest steers to
+    arrest_attitude_fade: float | None = None  # share of the boost's spin over which that rate target fades out
     lqr_axis_weight: float = 1000.0            # 1/rad^2 on n_x, n_y errors
     lqr_axis_floor: float = 1.0                # share of the axis weight at r = 0, rising as (r / r_bar)^2
     lqr_rate_weight: float = 5.0               # s^2/rad^2 on p, q errors
@@ -81,7 +83,7 @@ class SpinRecoveryGains:
 #: (`quadrotor_control.VEHICLE_GAINS`) it also boosts to 0.6 r_bar. Chosen on tuning flights; see
 #: docs/measurements.md, 'Tuning record: agents/spin_recovery.py'.
 VEHICLE_GAINS = {"bebop2": {"balance_idle": True, "lqr_opposite_weight": 1000.0, "lqr_axis_floor": 0.01,
-                            "arrest_rate": 1.0, "boost_until": 0.6, "arrest_attitude_gain": 4.0,
+                            "arrest_rate": 1.0, "boost_until": 0.6, "arrest_attitude_gain": 4.0, "arrest_attitude_fade": 0.3,
                             "position": (4.0, 4.0, 6.0), "velocity": (3.5, 3.5, 4.5), "max_axis_tilt_deg": 30.0}}
 
 
@@ -136,6 +138,7 @@ class SpinRecoveryController:
         self._stopped_steps = 0
         self.thrust_axis_reference = UP.copy()
         self.axis_command = UP.copy()
+        self._axis_slewed = None
 
     def equilibrium(self, failed_rotor: int) -> dict:
         """The relaxed hover flown without `failed_rotor` (cached)."""
@@ -175,12 +178,28 @@ class SpinRecoveryController:
         rates = self._filtered_rates(obs["gyro"])
         position, velocity = self._circle_centre(obs, R, rates)
         force = self._force_command(obs, position, velocity)
-        self.axis_command = force / np.linalg.norm(force)
+        self.axis_command = self._slew(force / np.linalg.norm(force))
         thrust = -force[2] / max(R[2, 2], 0.5)
         n_body = R.T @ self.axis_command
         forces, n_target = self._lqr.forces(n_body, rates, obs["rotor_speed"], thrust)
         self.thrust_axis_reference = thrust_axis_reference_for(R, n_body, n_target)
         return self._commands(forces)
+
+    def _slew(self, axis) -> np.ndarray:
+        """The commanded axis turned from its last value toward `axis` by at most axis_slew_rate_deg * dt."""
+        rate = self.gains.axis_slew_rate_deg
+        if rate is None or self._axis_slewed is None:
+            self._axis_slewed = axis
+            return axis
+        step = np.deg2rad(rate) * self.dt
+        previous = self._axis_slewed
+        angle = float(np.arccos(np.clip(previous @ axis, -1.0, 1.0)))
+        if angle > step:
+            k = cross(previous, axis)
+            k /= np.linalg.norm(k)
+            axis = previous * np.cos(step) + cross(k, previous) * np.sin(step)
+        self._axis_slewed = axis
+        return axis
 
     def _filtered_rates(self, gyro) -> np.ndarray:
         gyro = np.asarray(gyro, dtype=float)
