@@ -48,7 +48,7 @@ TASK_ENV_ID = "ftcgym/RotorLossRecovery-v0"
 
 #: The spin recovery's outer loop and arrest when the shipped `learned-spin` was imitated from it.
 IMITATED_GAINS = {"position": (1.2, 1.2, 4.0), "velocity": (1.6, 1.6, 3.5), "max_axis_tilt_deg": 20.0,
-                  "max_horizontal_speed": 2.0, "arrest_attitude_gain": 0.0}
+                  "max_horizontal_speed": 2.0, "arrest_attitude_gain": 0.0, "axis_slew_rate_deg": None}
 
 
 def imitated_gains(params):
