@@ -137,8 +137,8 @@ def test_recovers_holds_position_for_10_s_and_lands_softly():
 
 def test_hover_rotor_loss_returns_to_the_set_point():
     """One seeded `quad-rotor-loss-hover` episode (a tuning seed): starting at the true onset the spin recovery
-    drifts less than 0.7 m and is back within 0.5 m in 1.5 s; on the detector's alarm it recovers within 1.5 s, is back within 0.5 m
-    in 2.5 s, within 0.2 m in 3.5 s, and loses less than 0.3 m of altitude."""
+    drifts less than 0.7 m and is back within 0.5 m in 1.5 s; on the detector's alarm it recovers within 1.5 s,
+    is back within 0.5 m in 2.5 s, within 0.2 m in 3.5 s, and loses less than 0.3 m of altitude."""
     from ftcgym.benchmark.runner import make_env as make_scenario_env
     from ftcgym.benchmark.runner import roll_out, score_episode
     from ftcgym.benchmark.scenarios import get_scenario

@@ -168,6 +168,9 @@ class ScheduledAxisLqr:
         spin is too slow to hold a tilted primary axis); k = 0 damps the rate to zero. Damping alone freezes
         the tilt the loss left: the spin's gyroscopic stiffness then holds it in the world, and the thrust,
         flat out, pushes the vehicle sideways.
+        With `arrest_attitude_fade` f, the target shrinks to zero over the last share f of the boost's spin
+        (r from (1 - f) to 1 times boost_until r_bar): handed over with a rate still steering, the LQR let the
+        axis nutate 15-35 deg about n_des for ~0.7 s on bebop2.
 
         After the loss the body tips about the axis along which only the lost rotor could push back, and the
         opposite rotor can only push the wrong way: it is stopped. The adjacent pair's differential acts about

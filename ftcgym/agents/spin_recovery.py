@@ -12,7 +12,9 @@ Per agent step:
    thrust from the vertical balance T R_33 = -F_z. The PD is a cascade, velocity command k_p / k_d e (capped)
    then a = k_d (v_cmd - v) = k_p e - k_d v, so s^2 + k_d s + k_p: horizontally k_p = 3/s^2, k_d = 3/s
    (poles -1.5 +- 0.87j, damping 0.87), on bebop2 4 and 3.5 (-1.75 +- 0.97j, 0.87); the horizontal command
-   is capped at 5 m/s and the tilt of n_des at 25 deg (bebop2 30 deg).
+   is capped at 5 m/s and the tilt of n_des at 20 deg (bebop2 30 deg). n_des then turns at most 60 deg/s
+   (`axis_slew_rate_deg`): the spinning vehicle's axis lags a faster swing (the corners of a moving set-point,
+   the reversal of a fast return) by more than 10 deg.
    No acceleration feed-forward: the hover and goto set-points are steps, the observation carries no
    reference acceleration.
 2. Inner loop (`axis_lqr.ScheduledAxisLqr`): LQR on the linearised body-frame dynamics of (p, q, n_x, n_y) as
@@ -83,8 +85,9 @@ class SpinRecoveryGains:
 #: (`quadrotor_control.VEHICLE_GAINS`) it also boosts to 0.6 r_bar. Chosen on tuning flights; see
 #: docs/measurements.md, 'Tuning record: agents/spin_recovery.py'.
 VEHICLE_GAINS = {"bebop2": {"balance_idle": True, "lqr_opposite_weight": 1000.0, "lqr_axis_floor": 0.01,
-                            "arrest_rate": 1.0, "boost_until": 0.6, "arrest_attitude_gain": 4.0, "arrest_attitude_fade": 0.3,
-                            "position": (4.0, 4.0, 6.0), "velocity": (3.5, 3.5, 4.5), "max_axis_tilt_deg": 30.0}}
+                            "arrest_rate": 1.0, "boost_until": 0.6, "arrest_attitude_gain": 4.0,
+                            "arrest_attitude_fade": 0.3, "position": (4.0, 4.0, 6.0), "velocity": (3.5, 3.5, 4.5),
+                            "max_axis_tilt_deg": 30.0}}
 
 
 def gains_for(params: QuadrotorParams) -> SpinRecoveryGains:
