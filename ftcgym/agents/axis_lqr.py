@@ -151,16 +151,26 @@ class ScheduledAxisLqr:
         spinning_up = abs(r) < self.gains.boost_until * abs(self.r_bar)
         arrest = self.gains.arrest_rate
         if spinning_up and arrest is not None and np.hypot(rates[0], rates[1]) > arrest:
-            return self.arrest(rates), axis
+            return self.arrest(rates, n_body), axis
         command = forces0 + self.basis @ (-self.gain(r) @ deviation)
         if spinning_up:
             thrust = 3.0 * self.f_max   # spin up as fast as the rotors allow: yaw torque, lift, stiffness all grow
         return self._keep_thrust(command, thrust), axis
 
-    def arrest(self, rates) -> np.ndarray:
+    def arrest(self, rates, n_body=None) -> np.ndarray:
         """Spin up flat out and damp the roll/pitch rate left by the detection delay (the upset of Sun et al.,
         "Upset recovery control for quadrotors subjected to a complete rotor failure from large initial
-        disturbances", ICRA 2020).
+        disturbances", ICRA 2020), toward the rate that rights the thrust axis.
+
+        Rate target: with `arrest_attitude_gain` k > 0 and the commanded axis n_B = R^T n_des given, the
+        proportional reduced-attitude law omega_xy = k ((-z) x n_B)_xy = k (n_By, -n_Bx) turns the thrust axis
+        toward n_des (the primary-axis error of Sun et al., RA-L 2018, taken about the thrust axis while the
+        spin is too slow to hold a tilted primary axis); k = 0 damps the rate to zero. Damping alone freezes
+        the tilt the loss left: the spin's gyroscopic stiffness then holds it in the world, and the thrust,
+        flat out, pushes the vehicle sideways.
+        With `arrest_attitude_fade` f, the target shrinks to zero over the last share f of the boost's spin
+        (r from (1 - f) to 1 times boost_until r_bar): handed over with a rate still steering, the LQR let the
+        axis nutate 15-35 deg about n_des for ~0.7 s on bebop2.
 
         After the loss the body tips about the axis along which only the lost rotor could push back, and the
         opposite rotor can only push the wrong way: it is stopped. The adjacent pair's differential acts about
@@ -173,7 +183,17 @@ class ScheduledAxisLqr:
         """
         a, b = np.flatnonzero(self.pair)
         per_newton = (self.balance_rows[:2, a] - self.balance_rows[:2, b]) / 2.0 / self.inertia[:2]
-        desired = -self.gains.arrest_gain * np.asarray(rates[:2], dtype=float)
+        rates = np.asarray(rates, dtype=float)
+        rate_target = np.zeros(2)
+        if n_body is not None and self.gains.arrest_attitude_gain:
+            # body rate that turns the thrust axis -z toward n_des: k (-z) x n_B = k (n_y, -n_x, 0)
+            rate_target = self.gains.arrest_attitude_gain * np.array([n_body[1], -n_body[0]])
+            fade = self.gains.arrest_attitude_fade
+            if fade is not None:
+                # toward zero as the spin nears the hand-over to the LQR: it takes over with the rate damped
+                share = abs(float(rates[2])) / (self.gains.boost_until * abs(self.r_bar))
+                rate_target *= min(max((1.0 - share) / fade, 0.0), 1.0)
+        desired = -self.gains.arrest_gain * (rates[:2] - rate_target)
         differential = float(per_newton @ desired) / float(per_newton @ per_newton)
         forces = np.full(3, self.f_min)
         forces[a] = max(self.f_max + min(0.0, differential), self.f_min)

@@ -9,7 +9,14 @@ spin about, seen in the body; its x and y components are driven to those of the 
 Per agent step:
 1. Outer loop (`_force_command`): position PD + integral on the centre of the small circle the spinning
    vehicle flies -> desired force F = m (a - g) -> n_des = F / |F| (tilt-limited) and the collective
-   thrust from the vertical balance T R_33 = -F_z.
+   thrust from the vertical balance T R_33 = -F_z. The PD is a cascade, velocity command k_p / k_d e (capped)
+   then a = k_d (v_cmd - v) = k_p e - k_d v, so s^2 + k_d s + k_p: horizontally k_p = 3/s^2, k_d = 3/s
+   (poles -1.5 +- 0.87j, damping 0.87), on bebop2 4 and 3.5 (-1.75 +- 0.97j, 0.87); the horizontal command
+   is capped at 5 m/s and the tilt of n_des at 20 deg (bebop2 30 deg). n_des then turns at most 60 deg/s
+   (`axis_slew_rate_deg`): the spinning vehicle's axis lags a faster swing (the corners of a moving set-point,
+   the reversal of a fast return) by more than 10 deg.
+   No acceleration feed-forward: the hover and goto set-points are steps, the observation carries no
+   reference acceleration.
 2. Inner loop (`axis_lqr.ScheduledAxisLqr`): LQR on the linearised body-frame dynamics of (p, q, n_x, n_y) as
    Mueller & D'Andrea, plus the rotor forces' lag, gain-scheduled on the yaw rate while the spin builds
    up. Not the model inversion (NDI) of Sun et al.'s output: it holds the equilibrium, but it cancels the
@@ -43,19 +50,22 @@ DEFAULT_RHO = {"mueller2014": 0.5}   # Mueller & D'Andrea's choice
 class SpinRecoveryGains:
     rho: float | None = None                   # force ratio of the equilibrium; None: DEFAULT_RHO / choose_rho
     # outer loop
-    position: tuple = (1.2, 1.2, 4.0)          # 1/s^2, acceleration per metre
-    velocity: tuple = (1.6, 1.6, 3.5)          # 1/s
+    position: tuple = (3.0, 3.0, 4.0)          # 1/s^2, acceleration per metre
+    velocity: tuple = (3.0, 3.0, 3.5)          # 1/s
     position_integral: tuple = (0.3, 0.3, 2.0)  # 1/s^3
     integral_limit: float = 2.0                # m/s^2
     integral_zone: float = 0.3                 # m, position error inside which the integral runs
     max_axis_tilt_deg: float = 20.0            # n_des from vertical
-    max_horizontal_speed: float = 2.0          # m/s, cap on the velocity command
+    max_horizontal_speed: float = 5.0          # m/s, cap on the velocity command
+    axis_slew_rate_deg: float | None = 60.0    # deg/s, fastest turn of the commanded axis n_des; None: no limit
     gyro_cutoff_hz: float = 60.0               # first-order low-pass against motor vibration
     # inner loop (ScheduledAxisLqr)
     schedule_power: float = 2.0                # target axis leans toward n_bar as (r / r_bar)^power
     boost_until: float = 0.5                   # below this share of r_bar the adjacent pair runs flat out
     arrest_rate: float | None = None           # rad/s: above this roll/pitch rate the boost damps it first
     arrest_gain: float = 14.0                  # 1/s, rate-damping gain of the arrest (see ScheduledAxisLqr.arrest)
+    arrest_attitude_gain: float = 0.0          # 1/s, rate per radian of thrust-axis error the arrest steers to
+    arrest_attitude_fade: float | None = None  # share of the boost's spin over which that rate target fades out
     lqr_axis_weight: float = 1000.0            # 1/rad^2 on n_x, n_y errors
     lqr_axis_floor: float = 1.0                # share of the axis weight at r = 0, rising as (r / r_bar)^2
     lqr_rate_weight: float = 5.0               # s^2/rad^2 on p, q errors
@@ -75,7 +85,9 @@ class SpinRecoveryGains:
 #: (`quadrotor_control.VEHICLE_GAINS`) it also boosts to 0.6 r_bar. Chosen on tuning flights; see
 #: docs/measurements.md, 'Tuning record: agents/spin_recovery.py'.
 VEHICLE_GAINS = {"bebop2": {"balance_idle": True, "lqr_opposite_weight": 1000.0, "lqr_axis_floor": 0.01,
-                            "arrest_rate": 1.0, "boost_until": 0.6}}
+                            "arrest_rate": 1.0, "boost_until": 0.6, "arrest_attitude_gain": 4.0,
+                            "arrest_attitude_fade": 0.3, "position": (4.0, 4.0, 6.0), "velocity": (3.5, 3.5, 4.5),
+                            "max_axis_tilt_deg": 30.0}}
 
 
 def gains_for(params: QuadrotorParams) -> SpinRecoveryGains:
@@ -129,6 +141,7 @@ class SpinRecoveryController:
         self._stopped_steps = 0
         self.thrust_axis_reference = UP.copy()
         self.axis_command = UP.copy()
+        self._axis_slewed = None
 
     def equilibrium(self, failed_rotor: int) -> dict:
         """The relaxed hover flown without `failed_rotor` (cached)."""
@@ -168,12 +181,28 @@ class SpinRecoveryController:
         rates = self._filtered_rates(obs["gyro"])
         position, velocity = self._circle_centre(obs, R, rates)
         force = self._force_command(obs, position, velocity)
-        self.axis_command = force / np.linalg.norm(force)
+        self.axis_command = self._slew(force / np.linalg.norm(force))
         thrust = -force[2] / max(R[2, 2], 0.5)
         n_body = R.T @ self.axis_command
         forces, n_target = self._lqr.forces(n_body, rates, obs["rotor_speed"], thrust)
         self.thrust_axis_reference = thrust_axis_reference_for(R, n_body, n_target)
         return self._commands(forces)
+
+    def _slew(self, axis) -> np.ndarray:
+        """The commanded axis turned from its last value toward `axis` by at most axis_slew_rate_deg * dt."""
+        rate = self.gains.axis_slew_rate_deg
+        if rate is None or self._axis_slewed is None:
+            self._axis_slewed = axis
+            return axis
+        step = np.deg2rad(rate) * self.dt
+        previous = self._axis_slewed
+        angle = float(np.arccos(np.clip(previous @ axis, -1.0, 1.0)))
+        if angle > step:
+            k = cross(previous, axis)
+            k /= np.linalg.norm(k)
+            axis = previous * np.cos(step) + cross(k, previous) * np.sin(step)
+        self._axis_slewed = axis
+        return axis
 
     def _filtered_rates(self, gyro) -> np.ndarray:
         gyro = np.asarray(gyro, dtype=float)

@@ -14,7 +14,9 @@ learned policy states where its thrust axis belongs after the alarm:
 - "ftc-spin" (default): where `ftc-spin`'s would, from a shadow `SpinRecoveryController` engaged on the
   isolated rotor that sees every observation and never flies. The two policies are then scored by the same
   rule: the equilibrium's thrust axis about the primary axis that ftc-spin's position loop commands (it
-  leans up to 20 deg to correct position).
+  leans up to 20 deg to correct position). The shadow keeps the outer loop and arrest the shipped model
+  imitated (`IMITATED_GAINS`): scored against a later, stiffer position loop, a policy that never saw it
+  would count as off its axis.
 - "equilibrium": the equilibrium's thrust axis about the vertical, `thrust_axis_reference_for(R, R^T up,
   n_bar)`; stricter, since leaning to correct position counts as error.
 """
@@ -26,7 +28,7 @@ import numpy as np
 
 from ftcgym.agents import flies_airspeed, is_quadplane, make_policy
 from ftcgym.agents.base import UP
-from ftcgym.agents.spin_recovery import SpinRecoveryController, thrust_axis_reference_for
+from ftcgym.agents.spin_recovery import SpinRecoveryController, gains_for, thrust_axis_reference_for
 from ftcgym.models.geometry import rotation_matrix
 from ftcgym.task_envs.airspeed_source import DETECTOR as AIRSPEED_DETECTOR
 from ftcgym.task_envs.airspeed_source import ENV_ID as AIRSPEED_ENV_ID
@@ -42,6 +44,19 @@ from ftcgym.training.saved import (  # noqa: F401
 )
 
 TASK_ENV_ID = "ftcgym/RotorLossRecovery-v0"
+
+
+#: The spin recovery's outer loop and arrest when the shipped `learned-spin` was imitated from it.
+IMITATED_GAINS = {"position": (1.2, 1.2, 4.0), "velocity": (1.6, 1.6, 3.5), "max_axis_tilt_deg": 20.0,
+                  "max_horizontal_speed": 2.0, "arrest_attitude_gain": 0.0, "axis_slew_rate_deg": None}
+
+
+def imitated_gains(params):
+    """`spin_recovery.gains_for(params)` with IMITATED_GAINS: the expert the shipped model learned from."""
+    gains = gains_for(params)
+    for name, value in IMITATED_GAINS.items():
+        setattr(gains, name, value)
+    return gains
 
 
 class LearnedPolicy(SavedModelPolicy):
@@ -71,7 +86,8 @@ class LearnedPolicy(SavedModelPolicy):
                                  "controller)")
             self.nominal = make_policy("nominal", env)
             self.omega_max = env.unwrapped.params.omega_max
-            self._shadow = SpinRecoveryController(env.unwrapped.params, env.unwrapped.agent_hz)
+            params = env.unwrapped.params
+            self._shadow = SpinRecoveryController(params, env.unwrapped.agent_hz, imitated_gains(params))
         self.reset()
 
     @property
