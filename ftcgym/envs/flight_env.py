@@ -290,6 +290,16 @@ def check_action(action, low, high, what: str) -> np.ndarray:
     return np.minimum(np.maximum(a, low), high)
 
 
+def check_command(action, size: int, low: float, high: float, what: str) -> list:
+    """`check_action` for `size` commands sharing the bounds [low, high], as a list of floats (the physics
+    step's form): the same values, without numpy on the common path (a float array of the right shape)."""
+    if type(action) is np.ndarray and action.dtype.kind == "f" and action.shape == (size,):
+        values = action.tolist()
+        if math.isfinite(sum(values)):     # else the full check below names what is wrong
+            return [min(max(v, low), high) for v in values]
+    return check_action(action, np.full(size, low), np.full(size, high), what).tolist()
+
+
 #: the keyword arguments of the simulator envs (`gym.make`)
 KEYWORDS = ("vehicle", "vehicle_overrides", "wind", "faults", "task", "max_episode_seconds", "physics_hz", "agent_hz",
             "sensors", "render_mode", "render_size", "info_level")

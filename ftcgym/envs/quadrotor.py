@@ -28,15 +28,25 @@ from ..models.faults import FaultSchedule, parse_faults, resolve
 from ..models.geometry import quat_from_euler
 from ..models.quadrotor import YAW_SIGNS, make_params
 from ..models.rotors import RotorSet
-from ..models.sensors import ACCEL_LIMIT, GYRO_LIMIT, QuadrotorSensors, SensorConfig, SensorLimits
-from .flight_env import RENDER_SIZE, FlightEnv, check_action
+from ..models.sensors import (
+    ACCEL_LIMIT,
+    GYRO_LIMIT,
+    READINGS,
+    QuadrotorSensors,
+    SensorConfig,
+    SensorLimits,
+    reading_slices,
+)
+from .flight_env import RENDER_SIZE, FlightEnv, check_command
 from .visuals import QuadrotorLook
 
 #: the sensors (observation keys) a sensor fault may target, with their sizes
 SENSOR_SIZES = {"gyro": 3, "accel": 3, "attitude": 4, "position": 3, "velocity": 3, "rotor_speed": 4}
 BOUNDS = 100.0                    # m, half-width and ceiling of the flight box
-ROTOR_LOW, ROTOR_HIGH = np.zeros(4), np.ones(4)
 CRASH_PENALTY = 100.0
+#: the observation's keys in order, with their sizes: the sensors' readings, then the task's set-point
+OBSERVATION = (*READINGS, ("reference_position", 3), ("reference_velocity", 3), ("reference_yaw", 1))
+_OBSERVATION_SLICES = reading_slices(OBSERVATION)
 
 
 class QuadrotorEnv(FlightEnv):
@@ -127,7 +137,7 @@ class QuadrotorEnv(FlightEnv):
 
     # ----------------------------------------------------------------------------------------- step
     def step(self, action):
-        command = check_action(action, ROTOR_LOW, ROTOR_HIGH, "normalised rotor commands").tolist()
+        command = check_command(action, 4, 0.0, 1.0, "normalised rotor commands")
         low, span = self._omega_low, self._omega_span
         self._omega_cmd = [low + c * span for c in command]       # `RotorSet.command_to_omega`
         obs, terminated, truncated = self._advance()
@@ -155,7 +165,8 @@ class QuadrotorEnv(FlightEnv):
 
     def _apply_faults(self) -> None:
         """Set the rotor and mass faults in force from `self.time` on (so info at t shows what acts next)."""
-        self._faults.rotor_state(self.time, self.rotors.effectiveness, self.rotors.loaded)
+        if self._faults.rotor_state(self.time, self.rotors.effectiveness, self.rotors.loaded):
+            self.rotors.sync()
         if self._has_payload:
             self._update_mass(self.time)
 
@@ -167,9 +178,15 @@ class QuadrotorEnv(FlightEnv):
 
     # ----------------------------------------------------------------------------------------- outputs
     def _observe(self) -> dict:
-        readings = self.sensors.read(self._p, self._v, self._q, self._w, self._sf, self.rotors.omega.tolist())
-        self._faults.apply_to_sensors(self.time, readings)
-        return self._with_reference(readings)
+        """The readings and the set-point as views of one fresh array (one allocation per step)."""
+        ref = self._reference = self.task.reference(self.time)
+        values = self.sensors.read_floats(self._p, self._v, self._q, self._w, self._sf, self.rotors.omega_list)
+        values += ref.position.tolist()
+        values += ref.velocity.tolist()
+        values.append(ref.yaw)
+        flat = np.array(values)
+        readings = {key: flat[start:stop] for key, start, stop in _OBSERVATION_SLICES}
+        return self._faults.apply_to_sensors(self.time, readings)
 
     def _reward(self, command) -> float:
         if self._crashed:
@@ -197,7 +214,7 @@ class QuadrotorEnv(FlightEnv):
                 "airspeed": math.sqrt(ax * ax + ay * ay + az * az),
                 "mass": self._mass,
                 "rotor_effectiveness": rotors.effectiveness.copy(),
-                "rotor_speed": rotors.omega.copy(),
+                "rotor_speed": rotors.omega,
             }
         info.update(self._outcome())
         return info

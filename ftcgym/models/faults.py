@@ -222,15 +222,15 @@ class FaultSchedule:
         self._current_start, self._current_until = np.inf, -np.inf  # the cached info["fault"] holds in between
         self._rotor_arrays, self._rotor_from, self._rotor_until = (None, None), np.inf, -np.inf   # `rotor_state`
 
-    def rotor_state(self, t: float, effectiveness: np.ndarray, loaded: np.ndarray) -> None:
-        """Write the effectiveness and propeller presence at time t into the given arrays.
+    def rotor_state(self, t: float, effectiveness: np.ndarray, loaded: np.ndarray) -> bool:
+        """Write the effectiveness and propeller presence at time t into the given arrays; True if it wrote.
 
         Called every physics step, so the arrays are written only when the state may have changed: the
         rotor faults are constant between onsets once no loss-of-effectiveness ramp is rising (the arrays
         last written hold their values until the next onset)."""
         if (self._rotor_arrays[0] is effectiveness and self._rotor_arrays[1] is loaded
                 and self._rotor_from <= t < self._rotor_until):
-            return
+            return False
         effectiveness[:] = 1.0
         loaded[:] = True
         rising = False
@@ -248,6 +248,7 @@ class FaultSchedule:
         self._rotor_arrays = (effectiveness, loaded)
         self._rotor_from = t
         self._rotor_until = t if rising else min((s.time for s in self._rotor if s.time > t), default=np.inf)
+        return True
 
     def added_mass(self, t: float) -> float:
         total = 0.0

@@ -1,7 +1,9 @@
 """Rotor set of a multirotor: motor dynamics, thrust, drag torque, rotor drag, gyroscopic moments.
 
 One model for every vehicle: positions, spin directions and coefficients come from the parameter set.
-Effectiveness k_i (000 eq. 3) and `loaded` (propeller present) are the fault handles.
+Effectiveness k_i (000 eq. 3) and `loaded` (propeller present) are the fault handles: arrays written in place
+(`faults.FaultSchedule.rotor_state`), after which `sync()` brings the physics step's copies up to date.
+The rotor speeds live as plain floats (the physics step's form); `omega` and `omega_dot` give them as arrays.
 """
 from __future__ import annotations
 
@@ -24,8 +26,7 @@ class RotorSet:
         self.drag_coefficient = drag_coefficient
         self.unloaded_speed_ratio = unloaded_speed_ratio
         n = len(self.positions)
-        self.omega = np.zeros(n)
-        self.omega_dot = np.zeros(n)
+        self._omega, self._omega_dot = [0.0] * n, [0.0] * n
         self.effectiveness = np.ones(n)
         self.loaded = np.ones(n, dtype=bool)
         self._gain_dt = None
@@ -34,7 +35,7 @@ class RotorSet:
         self._pitch_arm = self.positions[:, 0]
         self._roll_arm_list, self._pitch_arm_list = self._roll_arm.tolist(), self._pitch_arm.tolist()
         self._signs_list = self.yaw_signs.tolist()
-        self._spin_loaded = None
+        self.sync()
 
     @classmethod
     def from_params(cls, params, yaw_signs):
@@ -43,11 +44,28 @@ class RotorSet:
                    params.max_rotor_acceleration, params.propeller_inertia, params.rotor_drag_coefficient,
                    params.unloaded_speed_ratio, params.unloaded_time_constant)
 
+    omega = property(lambda self: np.array(self._omega), doc="rotor speeds (rad/s), a fresh array")
+    omega_dot = property(lambda self: np.array(self._omega_dot), doc="rotor accelerations (rad/s^2), a fresh array")
+
+    omega_list = property(lambda self: self._omega, doc="rotor speeds (rad/s): the physics step's list (read only)")
+
+    @omega.setter
+    def omega(self, value) -> None:
+        self._omega = np.broadcast_to(np.asarray(value, dtype=float), (len(self._omega),)).tolist()
+
     def reset(self, omega) -> None:
-        self.omega[:] = omega
-        self.omega_dot[:] = 0.0
+        self.omega = omega
+        self._omega_dot = [0.0] * len(self._omega)
         self.effectiveness[:] = 1.0
         self.loaded[:] = True
+        self.sync()
+
+    def sync(self) -> None:
+        """Copy the fault handles `effectiveness` and `loaded` into the physics step's floats (after a write)."""
+        self._k, self._loaded_list = self.effectiveness.tolist(), self.loaded.tolist()
+        self._all_loaded = all(self._loaded_list)
+        # I_p * loaded_i * s_i per rotor (0 for a rotor without its propeller)
+        self._spin = (self.propeller_inertia * self.loaded * self.yaw_signs).tolist()
 
     def command_to_omega(self, command: np.ndarray) -> np.ndarray:
         """Normalised commands in [0, 1] -> rotor speed set-points (linear between idle and max)."""
@@ -58,7 +76,7 @@ class RotorSet:
 
         A motor that lost its propeller (000 Sec. III-A) is unloaded: the ESC drives it faster for the same
         command (`unloaded_speed_ratio`) and it responds faster (`unloaded_time_constant`). `omega` and
-        `omega_dot` are updated in place.
+        `omega_dot` are updated.
         """
         self.advance(omega_cmd, dt)
 
@@ -68,9 +86,9 @@ class RotorSet:
             self._gain_dt = dt
             self._gain_loaded = float(1.0 - np.exp(-dt / self.tau))
             self._gain_unloaded = float(1.0 - np.exp(-dt / self.tau_unloaded))
-        omega, loaded = self.omega.tolist(), self.loaded.tolist()
+        omega, loaded = self._omega, self._loaded_list
         gain, limit = self._gain_loaded, self.max_acceleration * dt
-        if len(omega) == 4 and all(loaded):    # the common case, unrolled
+        if len(omega) == 4 and self._all_loaded:    # the common case, unrolled
             c0, c1, c2, c3 = omega_cmd
             w0, w1, w2, w3 = omega
             d0 = min(max((c0 - w0) * gain, -limit), limit)
@@ -85,14 +103,12 @@ class RotorSet:
                      for c, w, on in zip(omega_cmd, omega, loaded)]
             omega_dot = [d / dt for d in delta]
             omega = [w + d for w, d in zip(omega, delta)]
-        self.omega[:] = omega
-        self.omega_dot[:] = omega_dot
+        self._omega, self._omega_dot = omega, omega_dot
         return omega, omega_dot
 
     def wrench(self, body_rates, air_velocity_body):
         """Force and moment on the body (FRD) from all rotors, as arrays (`wrench_floats`)."""
-        force, moment = self.wrench_floats(self.omega.tolist(), self.omega_dot.tolist(), body_rates,
-                                           air_velocity_body)
+        force, moment = self.wrench_floats(self._omega, self._omega_dot, body_rates, air_velocity_body)
         return np.array(force), np.array(moment)
 
     def wrench_floats(self, omega, omega_dot, body_rates, air_velocity_body):
@@ -107,7 +123,7 @@ class RotorSet:
 
         The sums run rotor by rotor in index order, as numpy's dot products of 4-vectors do (same bits).
         """
-        k = self.effectiveness.tolist()
+        k = self._k
         if len(k) == 4:
             return self._wrench4(k, omega, omega_dot, body_rates, air_velocity_body)
         c_t, roll_arm, pitch_arm, signs = self.c_t, self._roll_arm_list, self._pitch_arm_list, self._signs_list
@@ -130,7 +146,7 @@ class RotorSet:
         my = my_even + my_odd
         mz *= self.c_q
         # the propellers' angular momentum: I_p (loaded) s_i, dotted with omega and omega_dot
-        for i, inertia in enumerate(self._spin_inertia()):
+        for i, inertia in enumerate(self._spin):
             h_z += inertia * omega[i]
             spin_up += inertia * omega_dot[i]
         h_z = -h_z
@@ -152,7 +168,7 @@ class RotorSet:
         r0, r1, r2, r3 = self._roll_arm_list
         x0, x1, x2, x3 = self._pitch_arm_list
         s0, s1, s2, s3 = self._signs_list
-        i0, i1, i2, i3 = self._spin_inertia()
+        i0, i1, i2, i3 = self._spin
         e0, e1, e2, e3 = omega_dot
         h_z = -(i0 * w0 + i1 * w1 + i2 * w2 + i3 * w3)
         mx = r0 * t0 + r1 * t1 + r2 * t2 + r3 * t3 - body_rates[1] * h_z
@@ -160,14 +176,6 @@ class RotorSet:
         mz = (s0 * a0 + s1 * a1 + s2 * a2 + s3 * a3) * self.c_q + (i0 * e0 + i1 * e1 + i2 * e2 + i3 * e3)
         drag_gain = self.drag_coefficient * (k0 * w0 + k1 * w1 + k2 * w2 + k3 * w3)
         return (-drag_gain * air[0], -drag_gain * air[1], -(t0 + t1 + t2 + t3)), (mx, my, mz)
-
-    def _spin_inertia(self) -> list:
-        """I_p * loaded_i * s_i per rotor (0 for a rotor without its propeller), cached per `loaded` state."""
-        loaded = self.loaded.tolist()
-        if loaded != self._spin_loaded:
-            self._spin_loaded = loaded
-            self._spin = (self.propeller_inertia * self.loaded * self.yaw_signs).tolist()
-        return self._spin
 
     @property
     def total_thrust(self) -> float:

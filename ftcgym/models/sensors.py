@@ -124,7 +124,12 @@ class QuadrotorSensors:
 
     def read(self, position, velocity, quat, body_rates, specific_force, omega) -> dict:
         """One sample of every sensor, from the true state (NED / FRD; arrays or sequences of floats): a dict of
-        fresh arrays."""
+        fresh arrays (views of one array made per sample), keys and sizes as `READINGS`."""
+        flat = np.array(self.read_floats(position, velocity, quat, body_rates, specific_force, omega))
+        return {key: flat[start:stop] for key, start, stop in _READING_SLICES}
+
+    def read_floats(self, position, velocity, quat, body_rates, specific_force, omega) -> list:
+        """`read` as one list of floats, the readings of `READINGS` one after the other."""
         n = self._next_noise()
         ref2, (p0, p1, p2, p3) = self._omega_ref2, self._phase
         w0, w1, w2, w3 = omega
@@ -143,12 +148,6 @@ class QuadrotorSensors:
         gb0, gb1, gb2 = self._gyro_bias
         ab0, ab1, ab2 = self._accel_bias
         g, a = _GYRO_LIMIT, _ACCEL_LIMIT
-        gyro = np.array((min(max(body_rates[0] + gb0 + n[0] + gv0, -g), g),
-                         min(max(body_rates[1] + gb1 + n[1] + gv1, -g), g),
-                         min(max(body_rates[2] + gb2 + n[2] + gv2, -g), g)))
-        accel = np.array((min(max(specific_force[0] + ab0 + n[3] + av0, -a), a),
-                          min(max(specific_force[1] + ab1 + n[4] + av1, -a), a),
-                          min(max(specific_force[2] + ab2 + n[5] + av2, -a), a)))
         if self._count % self._hold_steps == 0:
             p, v = self.limits.position, self.limits.velocity
             self._position = (min(max(position[0] + n[9], -p), p), min(max(position[1] + n[10], -p), p),
@@ -157,15 +156,28 @@ class QuadrotorSensors:
                               min(max(velocity[2] + n[14], -v), v))
         self._count += 1
         top = self.limits.rotor_speed
-        return {
-            "gyro": gyro,
-            "accel": accel,
-            "attitude": np.array(_perturb_floats(quat, n[6], n[7], n[8])),
-            "position": np.array(self._position),
-            "velocity": np.array(self._velocity),
-            "rotor_speed": np.array((min(max(w0 + n[15], 0.0), top), min(max(w1 + n[16], 0.0), top),
-                                     min(max(w2 + n[17], 0.0), top), min(max(w3 + n[18], 0.0), top))),
-        }
+        return [min(max(body_rates[0] + gb0 + n[0] + gv0, -g), g),
+                min(max(body_rates[1] + gb1 + n[1] + gv1, -g), g),
+                min(max(body_rates[2] + gb2 + n[2] + gv2, -g), g),
+                min(max(specific_force[0] + ab0 + n[3] + av0, -a), a),
+                min(max(specific_force[1] + ab1 + n[4] + av1, -a), a),
+                min(max(specific_force[2] + ab2 + n[5] + av2, -a), a),
+                *_perturb_floats(quat, n[6], n[7], n[8]), *self._position, *self._velocity,
+                min(max(w0 + n[15], 0.0), top), min(max(w1 + n[16], 0.0), top),
+                min(max(w2 + n[17], 0.0), top), min(max(w3 + n[18], 0.0), top)]
+
+
+#: the readings of `QuadrotorSensors.read`, in order, with their sizes
+READINGS = (("gyro", 3), ("accel", 3), ("attitude", 4), ("position", 3), ("velocity", 3), ("rotor_speed", 4))
+
+
+def reading_slices(readings) -> tuple:
+    """(key, start, stop) of each (key, size) of `readings` laid end to end in one array."""
+    ends = np.cumsum([size for _, size in readings]).tolist()
+    return tuple((key, stop - size, stop) for (key, size), stop in zip(readings, ends))
+
+
+_READING_SLICES = reading_slices(READINGS)
 
 
 def _saturate(x: np.ndarray, limit: float) -> np.ndarray:
