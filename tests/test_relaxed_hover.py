@@ -120,7 +120,7 @@ def test_simulator_holds_the_equilibrium_open_loop(vehicle, rho, failed, quiet_s
     velocity = -np.cross(spin_world, accel) / (spin_world @ spin_world)      # on the circle, not beside it
     start = np.array([0.0, 0.0, -5.0])
     u.world.reset(start, attitude.as_quat(), velocity, eq["body_rates"])
-    u.rotors.omega = eq["rotor_speeds"]
+    u.rotors.omega[:] = eq["rotor_speeds"]
     u._read_state()
     command = np.clip((eq["rotor_speeds"] - p.omega_min) / (p.omega_max - p.omega_min), 0.0, 1.0)
     command[failed] = 0.0

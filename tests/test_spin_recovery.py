@@ -81,7 +81,7 @@ def test_controller_holds_the_relaxed_hover_it_starts_in(quiet_sensors):
     accel = R @ np.array([0.0, 0.0, -eq["thrust"]]) / u.params.mass + np.array([0.0, 0.0, GRAVITY])
     circle_velocity = -np.cross(spin_world, accel) / (spin_world @ spin_world)
     u.world.reset(np.array([0.0, 0.0, -5.0]), attitude.as_quat(), circle_velocity, eq["body_rates"])
-    u.rotors.omega = eq["rotor_speeds"]
+    u.rotors.omega[:] = eq["rotor_speeds"]
     u._read_state()
     obs = u._observe()
     controller.engage(failed, obs)

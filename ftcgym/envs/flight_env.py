@@ -168,19 +168,24 @@ class FlightEnv(gym.Env):
         return obs, terminated, truncated
 
     def _integrate(self, force, moment) -> None:
-        """One physics step with the body-frame force and moment (3 floats each); then the faults of the new
-        time and the state.
+        """One physics step with the body-frame force and moment (3 floats each) (`_integrate_world`).
 
-        The physics step works on plain floats (`_p`, `_v`, `_q`, `_Rm` row-major, `_w`: position, velocity,
-        quaternion, rotation matrix and body rates; `_pos`, `_vel`, ... give them as arrays). The two rotations
-        into the world frame stay numpy matrix-vector products: BLAS rounds them with a fused multiply-add that
-        plain Python cannot reproduce, and the trajectories stay bit-identical with it."""
-        v_before = self._v
-        R, rotate, vec = self._Rm, self._R_array, self._vec3
+        The two rotations into the world frame are numpy matrix-vector products: BLAS rounds them with a fused
+        multiply-add that plain Python cannot reproduce, and the trajectories keep their bits with it."""
+        rotate, vec = self._R_array, self._vec3
         vec[0], vec[1], vec[2] = force
         force_ned = np.dot(rotate, vec).tolist()
         vec[0], vec[1], vec[2] = moment
-        self.world.step(force_ned, np.dot(rotate, vec).tolist(), self._p)
+        self._integrate_world(force_ned, np.dot(rotate, vec).tolist())
+
+    def _integrate_world(self, force_ned, moment_ned) -> None:
+        """One physics step with the force and moment in the world frame (NED); then the faults of the new time
+        and the state.
+
+        The physics step works on plain floats (`_p`, `_v`, `_q`, `_Rm` row-major, `_w`: position, velocity,
+        quaternion, rotation matrix and body rates; `_pos`, `_vel`, ... give them as arrays)."""
+        v_before, R = self._v, self._Rm
+        self.world.step(force_ned, moment_ned, self._p)
         self._physics_steps += 1
         self.time = self._physics_steps / self.physics_hz  # counted, so it never drifts
         self._apply_faults()

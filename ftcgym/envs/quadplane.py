@@ -199,7 +199,7 @@ class QuadPlaneEnv(FlightEnv):
     # ----------------------------------------------------------------------------------------- outputs
     def _observe(self) -> dict:
         readings = self.sensors.read(self._p, self._v, self._q, self._w, self._sf,
-                                     self.hover_rotors.omega_list, self._air_body[0], self.skew,
+                                     self.hover_rotors.omega.tolist(), self._air_body[0], self.skew,
                                      self.pusher.omega, self.pusher.current)
         readings["pitot_airspeed"][0] = self._faults.apply_to_pitot(self.time, float(readings["pitot_airspeed"][0]))
         self._faults.apply_to_sensors(self.time, readings)
@@ -233,7 +233,7 @@ class QuadPlaneEnv(FlightEnv):
                 "body_rates": np.array(self._w), "wind": np.array(self._wind), "airspeed": self.airspeed(),
                 "air_velocity_body": np.array(self._air_body), "angle_of_attack": self.angle_of_attack(),
                 "mass": self.params.mass, "rotor_effectiveness": rotors.effectiveness.copy(),
-                "rotor_speed": rotors.omega, "skew": self.skew, "surfaces": self.surfaces.copy(),
+                "rotor_speed": rotors.omega.copy(), "skew": self.skew, "surfaces": self.surfaces.copy(),
                 "pusher": {"omega": pusher.omega, "current": pusher.current, "thrust": pusher.thrust,
                            "theta_1": pusher.theta_1, "c_v": pusher.c_v, "I_0": pusher.I_0},
             }

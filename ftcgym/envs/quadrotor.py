@@ -23,11 +23,12 @@ import math
 
 import numpy as np
 from gymnasium import spaces
+from numba import njit
 
 from ..models.faults import FaultSchedule, parse_faults, resolve
 from ..models.geometry import quat_from_euler
 from ..models.quadrotor import YAW_SIGNS, make_params
-from ..models.rotors import RotorSet
+from ..models.rotors import RotorSet, advance_speeds, rotor_loads
 from ..models.sensors import (
     ACCEL_LIMIT,
     GYRO_LIMIT,
@@ -87,12 +88,13 @@ class QuadrotorEnv(FlightEnv):
         high = {key: top[0] for key, (_, top) in self._limits.items()}
         limits = SensorLimits(high["position"], high["velocity"], high["rotor_speed"])
         self.sensors = QuadrotorSensors(self._sensor_config, 4, self.params.hover_omega, 1.0 / self.agent_hz, limits)
-        # cached as floats for the physics loop
-        self._body_drag = tuple(float(d) for d in self.params.body_drag)
-        self._rot_drag = tuple(zip((float(d) for d in self.params.rotational_drag),
-                                   (float(d) for d in self.params.rotational_drag_quadratic)))
-        p = self.params
+        p, rotors = self.params, self.rotors
         self._omega_low, self._omega_span = float(p.omega_min), float(p.omega_max - p.omega_min)
+        # the constants of `physics_loads`, in its order
+        self._loads_params = np.array([rotors.c_t, rotors.c_q, rotors.drag_coefficient, self.dt,
+                                       *rotors.gains(self.dt), *p.body_drag,
+                                       *np.ravel(np.column_stack([p.rotational_drag, p.rotational_drag_quadratic]))],
+                                      dtype=float)
 
     # ----------------------------------------------------------------------------------------- spaces
     def _make_observation_space(self, params) -> spaces.Dict:
@@ -128,7 +130,7 @@ class QuadrotorEnv(FlightEnv):
         self._start(position, attitude)
         self.rotors.reset(self.params.hover_omega)
         self._apply_faults()
-        self._omega_cmd = [self.params.hover_omega] * 4
+        self._omega_cmd = np.full(4, float(self.params.hover_omega))
         self._wind = tuple(self.wind.reset(rng).tolist())
         self.sensors.reset(rng)
         self._at_rest_readings()
@@ -139,29 +141,19 @@ class QuadrotorEnv(FlightEnv):
     def step(self, action):
         command = check_command(action, 4, 0.0, 1.0, "normalised rotor commands")
         low, span = self._omega_low, self._omega_span
-        self._omega_cmd = [low + c * span for c in command]       # `RotorSet.command_to_omega`
+        self._omega_cmd = np.array([low + c * span for c in command])       # `RotorSet.command_to_omega`
         obs, terminated, truncated = self._advance()
         reward = self._reward(command)
         return obs, reward, terminated, truncated, self._info()
 
     def _physics_step(self) -> None:
-        """Rotors, wind, the rotor wrench plus body and rotational drag, on plain floats."""
-        dt, rotors = self.dt, self.rotors
-        omega, omega_dot = rotors.advance(self._omega_cmd, dt)
+        """Rotors, wind, the rotor wrench plus body and rotational drag (`physics_loads`, compiled)."""
         wind = self._wind = self.wind.advance()
-        R, v, rates = self._Rm, self._v, self._w
-        dx, dy, dz = v[0] - wind[0], v[1] - wind[1], v[2] - wind[2]
-        air = (R[0] * dx + R[3] * dy + R[6] * dz, R[1] * dx + R[4] * dy + R[7] * dz,
-               R[2] * dx + R[5] * dy + R[8] * dz)              # R^T (v - wind)
-        force, moment = rotors.wrench_floats(omega, omega_dot, rates, air)
-        (bx, by, bz), ((l0, q0), (l1, q1), (l2, q2)) = self._body_drag, self._rot_drag
-        p, q, r = rates
-        force = (force[0] - bx * air[0], force[1] - by * air[1], force[2] - bz * air[2])
-        # `rotational_drag_moment`: -(D1 + D2 |w|) w
-        moment = (moment[0] + -(l0 + q0 * abs(p)) * p, moment[1] + -(l1 + q1 * abs(q)) * q,
-                  moment[2] + -(l2 + q2 * abs(r)) * r)
-        self.sensors.advance_rotor_phase(omega, dt)
-        self._integrate(force, moment)
+        rotors = self.rotors
+        loads = physics_loads(rotors.state, rotors.geometry, self._omega_cmd, self._loads_params, self._R_array,
+                              self._v, self._w, wind)
+        self.sensors.advance_rotor_phase(rotors.omega.tolist(), self.dt)
+        self._integrate_world(loads[:3], loads[3:])
 
     def _apply_faults(self) -> None:
         """Set the rotor and mass faults in force from `self.time` on (so info at t shows what acts next)."""
@@ -180,7 +172,7 @@ class QuadrotorEnv(FlightEnv):
     def _observe(self) -> dict:
         """The readings and the set-point as views of one fresh array (one allocation per step)."""
         ref = self._reference = self.task.reference(self.time)
-        values = self.sensors.read_floats(self._p, self._v, self._q, self._w, self._sf, self.rotors.omega_list)
+        values = self.sensors.read_floats(self._p, self._v, self._q, self._w, self._sf, self.rotors.omega.tolist())
         values += ref.position.tolist()
         values += ref.velocity.tolist()
         values.append(ref.yaw)
@@ -214,7 +206,32 @@ class QuadrotorEnv(FlightEnv):
                 "airspeed": math.sqrt(ax * ax + ay * ay + az * az),
                 "mass": self._mass,
                 "rotor_effectiveness": rotors.effectiveness.copy(),
-                "rotor_speed": rotors.omega,
+                "rotor_speed": rotors.omega.copy(),
             }
         info.update(self._outcome())
         return info
+
+
+@njit(cache=True)
+def physics_loads(rotors, geometry, command, params, R, v, rates, wind):  # pragma: no cover (compiled)
+    """One physics step's rotor speeds (`advance_speeds`, in place on `rotors`) and the loads they and the
+    airframe put on the body, in the world frame: (fx, fy, fz, mx, my, mz) NED.
+
+    The air velocity in the body frame is R^T (v - wind); the body drag is -D v_air per axis and the
+    rotational drag -(D1 + D2 |w|) w (`models.quadrotor`); `params` holds c_T, c_Q, k_d, dt, the gains of
+    `RotorSet.gains`, D and (D1, D2) per axis. The rotations into the world frame are BLAS's, as numpy's."""
+    c_t, c_q, k_d, dt = params[0], params[1], params[2], params[3]
+    advance_speeds(rotors, command, dt, params[4], params[5], params[6], params[7])
+    dx, dy, dz = v[0] - wind[0], v[1] - wind[1], v[2] - wind[2]
+    ax = R[0, 0] * dx + R[1, 0] * dy + R[2, 0] * dz
+    ay = R[0, 1] * dx + R[1, 1] * dy + R[2, 1] * dz
+    az = R[0, 2] * dx + R[1, 2] * dy + R[2, 2] * dz
+    p, q, r = rates
+    fx, fy, fz, mx, my, mz = rotor_loads(rotors, geometry, c_t, c_q, k_d, p, q, ax, ay)
+    force, moment = np.empty(3), np.empty(3)
+    force[0], force[1], force[2] = fx - params[8] * ax, fy - params[9] * ay, fz - params[10] * az
+    moment[0] = mx + -(params[11] + params[12] * abs(p)) * p
+    moment[1] = my + -(params[13] + params[14] * abs(q)) * q
+    moment[2] = mz + -(params[15] + params[16] * abs(r)) * r
+    force_ned, moment_ned = np.dot(R, force), np.dot(R, moment)
+    return force_ned[0], force_ned[1], force_ned[2], moment_ned[0], moment_ned[1], moment_ned[2]

@@ -3,11 +3,21 @@
 One model for every vehicle: positions, spin directions and coefficients come from the parameter set.
 Effectiveness k_i (000 eq. 3) and `loaded` (propeller present) are the fault handles: arrays written in place
 (`faults.FaultSchedule.rotor_state`), after which `sync()` brings the physics step's copies up to date.
-The rotor speeds live as plain floats (the physics step's form); `omega` and `omega_dot` give them as arrays.
+
+The per-step arithmetic is compiled (numba: `advance_speeds`, `rotor_loads`), so a physics step can run it
+without the interpreter; it keeps the operations and their order of the plain-Python model it replaced, so
+trajectories keep their bits.
 """
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
+
+#: rows of `RotorSet.state`: speeds (rad/s), accelerations (rad/s^2), effectiveness, propeller present (1/0),
+#: I_p * present * yaw sign (the propeller's spin inertia about -z)
+OMEGA, OMEGA_DOT, EFFECTIVENESS, LOADED, SPIN = range(5)
+#: rows of `RotorSet.geometry`: thrust moment arms about x (-y_i) and y (x_i), yaw signs
+ROLL_ARM, PITCH_ARM, SIGNS = range(3)
 
 
 class RotorSet:
@@ -26,15 +36,12 @@ class RotorSet:
         self.drag_coefficient = drag_coefficient
         self.unloaded_speed_ratio = unloaded_speed_ratio
         n = len(self.positions)
-        self._omega, self._omega_dot = [0.0] * n, [0.0] * n
-        self.effectiveness = np.ones(n)
+        self.state = np.zeros((5, n))
+        self.effectiveness[:] = 1.0
         self.loaded = np.ones(n, dtype=bool)
         self._gain_dt = None
         # Moments of the rotor thrusts T_i (along -z): r_i x (0, 0, -T_i) = (-y_i T_i, x_i T_i, 0), 000 eq. (4).
-        self._roll_arm = -self.positions[:, 1]
-        self._pitch_arm = self.positions[:, 0]
-        self._roll_arm_list, self._pitch_arm_list = self._roll_arm.tolist(), self._pitch_arm.tolist()
-        self._signs_list = self.yaw_signs.tolist()
+        self.geometry = np.array([-self.positions[:, 1], self.positions[:, 0], self.yaw_signs])
         self.sync()
 
     @classmethod
@@ -44,139 +51,110 @@ class RotorSet:
                    params.max_rotor_acceleration, params.propeller_inertia, params.rotor_drag_coefficient,
                    params.unloaded_speed_ratio, params.unloaded_time_constant)
 
-    omega = property(lambda self: np.array(self._omega), doc="rotor speeds (rad/s), a fresh array")
-    omega_dot = property(lambda self: np.array(self._omega_dot), doc="rotor accelerations (rad/s^2), a fresh array")
-
-    omega_list = property(lambda self: self._omega, doc="rotor speeds (rad/s): the physics step's list (read only)")
+    # Rows of `state` (views: writes go to the state the compiled step reads).
+    omega = property(lambda self: self.state[OMEGA], doc="rotor speeds (rad/s)")
+    omega_dot = property(lambda self: self.state[OMEGA_DOT], doc="rotor accelerations (rad/s^2)")
+    effectiveness = property(lambda self: self.state[EFFECTIVENESS], doc="loss-of-effectiveness factors k_i")
 
     @omega.setter
     def omega(self, value) -> None:
-        self._omega = np.broadcast_to(np.asarray(value, dtype=float), (len(self._omega),)).tolist()
+        self.state[OMEGA] = value
 
     def reset(self, omega) -> None:
-        self.omega = omega
-        self._omega_dot = [0.0] * len(self._omega)
+        self.omega[:] = omega
+        self.omega_dot[:] = 0.0
         self.effectiveness[:] = 1.0
         self.loaded[:] = True
         self.sync()
 
     def sync(self) -> None:
-        """Copy the fault handles `effectiveness` and `loaded` into the physics step's floats (after a write)."""
-        self._k, self._loaded_list = self.effectiveness.tolist(), self.loaded.tolist()
-        self._all_loaded = all(self._loaded_list)
-        # I_p * loaded_i * s_i per rotor (0 for a rotor without its propeller)
-        self._spin = (self.propeller_inertia * self.loaded * self.yaw_signs).tolist()
+        """Copy the fault handle `loaded` into `state` (after a write; `effectiveness` is a row of it)."""
+        self.state[LOADED] = self.loaded
+        self.state[SPIN] = self.propeller_inertia * self.loaded * self.yaw_signs
+
+    def gains(self, dt: float) -> tuple:
+        """(loaded gain, unloaded gain, acceleration limit, unloaded speed ratio) of `advance_speeds` for dt."""
+        if dt != self._gain_dt:
+            self._gain_dt = dt
+            self._gains = (float(1.0 - np.exp(-dt / self.tau)), float(1.0 - np.exp(-dt / self.tau_unloaded)),
+                           self.max_acceleration * dt, float(self.unloaded_speed_ratio))
+        return self._gains
 
     def command_to_omega(self, command: np.ndarray) -> np.ndarray:
         """Normalised commands in [0, 1] -> rotor speed set-points (linear between idle and max)."""
         return self.omega_min + command * (self.omega_max - self.omega_min)
 
     def step(self, omega_cmd, dt: float) -> None:
-        """Exact first-order lag toward the set-point, then the acceleration limit.
-
-        A motor that lost its propeller (000 Sec. III-A) is unloaded: the ESC drives it faster for the same
-        command (`unloaded_speed_ratio`) and it responds faster (`unloaded_time_constant`). `omega` and
-        `omega_dot` are updated.
-        """
-        self.advance(omega_cmd, dt)
+        """`advance_speeds`: `omega` and `omega_dot` are updated in place."""
+        advance_speeds(self.state, np.asarray(omega_cmd, dtype=float), dt, *self.gains(dt))
 
     def advance(self, omega_cmd, dt: float):
-        """`step` on plain floats (four rotors cost less without numpy); returns (omega, omega_dot) as lists."""
-        if dt != self._gain_dt:
-            self._gain_dt = dt
-            self._gain_loaded = float(1.0 - np.exp(-dt / self.tau))
-            self._gain_unloaded = float(1.0 - np.exp(-dt / self.tau_unloaded))
-        omega, loaded = self._omega, self._loaded_list
-        gain, limit = self._gain_loaded, self.max_acceleration * dt
-        if len(omega) == 4 and self._all_loaded:    # the common case, unrolled
-            c0, c1, c2, c3 = omega_cmd
-            w0, w1, w2, w3 = omega
-            d0 = min(max((c0 - w0) * gain, -limit), limit)
-            d1 = min(max((c1 - w1) * gain, -limit), limit)
-            d2 = min(max((c2 - w2) * gain, -limit), limit)
-            d3 = min(max((c3 - w3) * gain, -limit), limit)
-            omega_dot = [d0 / dt, d1 / dt, d2 / dt, d3 / dt]
-            omega = [w0 + d0, w1 + d1, w2 + d2, w3 + d3]
-        else:
-            ratio, unloaded_gain = self.unloaded_speed_ratio, self._gain_unloaded
-            delta = [min(max((c - w) * gain if on else (c * ratio - w) * unloaded_gain, -limit), limit)
-                     for c, w, on in zip(omega_cmd, omega, loaded)]
-            omega_dot = [d / dt for d in delta]
-            omega = [w + d for w, d in zip(omega, delta)]
-        self._omega, self._omega_dot = omega, omega_dot
-        return omega, omega_dot
+        """`step`, returning (omega, omega_dot) as lists of floats."""
+        self.step(omega_cmd, dt)
+        return self.omega.tolist(), self.omega_dot.tolist()
 
     def wrench(self, body_rates, air_velocity_body):
-        """Force and moment on the body (FRD) from all rotors, as arrays (`wrench_floats`)."""
-        force, moment = self.wrench_floats(self._omega, self._omega_dot, body_rates, air_velocity_body)
-        return np.array(force), np.array(moment)
-
-    def wrench_floats(self, omega, omega_dot, body_rates, air_velocity_body):
-        """Force and moment on the body (FRD) from all rotors at speeds `omega` and accelerations `omega_dot`
-        (the state `advance` returns), as 3-tuples of floats:
-
-        - thrust c_T k_i omega_i^2 along -z (000 eq. 3) and its moments (000 eq. 4, 8);
-        - drag torque c_Q k_i omega_i^2 with the yaw signs of 004 eq. (7) (docs/concepts.md, 'Rotor numbering');
-        - rotor drag -k_d k_i omega_i v_inplane, proportional to airspeed times rotor speed (001 Sec. 4.3);
-        - gyroscopic moment -Omega x h of the spinning propellers and the reaction to their spin-up.
-          Propeller i spins about -s_i z (s_i its yaw sign), so h = -I_p sum(s_i omega_i) z.
-
-        The sums run rotor by rotor in index order, as numpy's dot products of 4-vectors do (same bits).
-        """
-        k = self._k
-        if len(k) == 4:
-            return self._wrench4(k, omega, omega_dot, body_rates, air_velocity_body)
-        c_t, roll_arm, pitch_arm, signs = self.c_t, self._roll_arm_list, self._pitch_arm_list, self._signs_list
-        w2k = [ki * wi * wi for ki, wi in zip(k, omega)]
-        thrust = [c_t * x for x in w2k]
-        mx = mz = drag = total = h_z = spin_up = 0.0
-        my_even = my_odd = 0.0
-        for i in range(len(thrust)):
-            t = thrust[i]
-            mx += roll_arm[i] * t
-            if i % 2:
-                my_odd += pitch_arm[i] * t
-            else:
-                my_even += pitch_arm[i] * t
-            mz += signs[i] * w2k[i]
-            drag += k[i] * omega[i]
-            total += t
-        # The pitch sum in two interleaved partial sums: the bits of BLAS's dot product over the strided column
-        # `positions[:, 0]` that this model used before it went to plain floats (the trajectories stay the same).
-        my = my_even + my_odd
-        mz *= self.c_q
-        # the propellers' angular momentum: I_p (loaded) s_i, dotted with omega and omega_dot
-        for i, inertia in enumerate(self._spin):
-            h_z += inertia * omega[i]
-            spin_up += inertia * omega_dot[i]
-        h_z = -h_z
-        mz += spin_up                          # reaction to propeller spin-up
-        p, q = body_rates[0], body_rates[1]
-        # -Omega x (0, 0, h_z) = (-q h_z, p h_z, 0)
-        mx -= q * h_z
-        my += p * h_z
-        drag_gain = self.drag_coefficient * drag
-        return (-drag_gain * air_velocity_body[0], -drag_gain * air_velocity_body[1], -total), (mx, my, mz)
-
-    def _wrench4(self, k, omega, omega_dot, body_rates, air):
-        """`wrench_floats` of four rotors, unrolled (the same operations in the same order)."""
-        k0, k1, k2, k3 = k
-        w0, w1, w2, w3 = omega
-        a0, a1, a2, a3 = k0 * w0 * w0, k1 * w1 * w1, k2 * w2 * w2, k3 * w3 * w3
-        c_t = self.c_t
-        t0, t1, t2, t3 = c_t * a0, c_t * a1, c_t * a2, c_t * a3
-        r0, r1, r2, r3 = self._roll_arm_list
-        x0, x1, x2, x3 = self._pitch_arm_list
-        s0, s1, s2, s3 = self._signs_list
-        i0, i1, i2, i3 = self._spin
-        e0, e1, e2, e3 = omega_dot
-        h_z = -(i0 * w0 + i1 * w1 + i2 * w2 + i3 * w3)
-        mx = r0 * t0 + r1 * t1 + r2 * t2 + r3 * t3 - body_rates[1] * h_z
-        my = (x0 * t0 + x2 * t2) + (x1 * t1 + x3 * t3) + body_rates[0] * h_z   # pairs: see `wrench_floats`
-        mz = (s0 * a0 + s1 * a1 + s2 * a2 + s3 * a3) * self.c_q + (i0 * e0 + i1 * e1 + i2 * e2 + i3 * e3)
-        drag_gain = self.drag_coefficient * (k0 * w0 + k1 * w1 + k2 * w2 + k3 * w3)
-        return (-drag_gain * air[0], -drag_gain * air[1], -(t0 + t1 + t2 + t3)), (mx, my, mz)
+        """Force and moment on the body (FRD) from all rotors, as arrays (`rotor_loads`)."""
+        loads = rotor_loads(self.state, self.geometry, self.c_t, self.c_q, self.drag_coefficient,
+                            float(body_rates[0]), float(body_rates[1]), float(air_velocity_body[0]),
+                            float(air_velocity_body[1]))
+        return np.array(loads[:3]), np.array(loads[3:])
 
     @property
     def total_thrust(self) -> float:
         return self.c_t * float(self.effectiveness @ (self.omega * self.omega))
+
+
+@njit(cache=True)
+def advance_speeds(state, command, dt, gain, unloaded_gain, limit, ratio):  # pragma: no cover (compiled)
+    """Exact first-order lag of each motor toward its set-point, then the acceleration limit (`limit` rad/s
+    per step), in place on `state`'s OMEGA and OMEGA_DOT rows.
+
+    A motor that lost its propeller (000 Sec. III-A) is unloaded: the ESC drives it faster for the same command
+    (`ratio`, `unloaded_speed_ratio`) and it responds faster (`unloaded_gain`, from `unloaded_time_constant`).
+    """
+    for i in range(state.shape[1]):
+        w = state[OMEGA, i]
+        if state[LOADED, i] != 0.0:
+            delta = (command[i] - w) * gain
+        else:
+            delta = (command[i] * ratio - w) * unloaded_gain
+        delta = min(max(delta, -limit), limit)
+        state[OMEGA_DOT, i] = delta / dt
+        state[OMEGA, i] = w + delta
+
+
+@njit(cache=True)
+def rotor_loads(state, geometry, c_t, c_q, drag_coefficient, p, q, air_x, air_y):  # pragma: no cover (compiled)
+    """Force and moment on the body (FRD) from all rotors of `state`, (fx, fy, fz, mx, my, mz):
+
+    - thrust c_T k_i omega_i^2 along -z (000 eq. 3) and its moments (000 eq. 4, 8);
+    - drag torque c_Q k_i omega_i^2 with the yaw signs of 004 eq. (7) (docs/concepts.md, 'Rotor numbering');
+    - rotor drag -k_d k_i omega_i v_inplane, proportional to airspeed times rotor speed (001 Sec. 4.3);
+    - gyroscopic moment -Omega x h of the spinning propellers and the reaction to their spin-up.
+      Propeller i spins about -s_i z (s_i its yaw sign), so h = -I_p sum(s_i omega_i) z.
+
+    The sums run rotor by rotor in index order, as numpy's dot products of 4-vectors do; the pitch sum runs
+    in two interleaved partial sums, the bits of BLAS's dot product over the strided column `positions[:, 0]`
+    that this model used first (the trajectories stay the same).
+    """
+    mx = my_even = my_odd = mz = drag = total = h_z = spin_up = 0.0
+    for i in range(state.shape[1]):
+        w, k = state[OMEGA, i], state[EFFECTIVENESS, i]
+        w2k = k * w * w
+        thrust = c_t * w2k
+        mx += geometry[ROLL_ARM, i] * thrust
+        if i % 2:
+            my_odd += geometry[PITCH_ARM, i] * thrust
+        else:
+            my_even += geometry[PITCH_ARM, i] * thrust
+        mz += geometry[SIGNS, i] * w2k
+        drag += k * w
+        total += thrust
+        h_z += state[SPIN, i] * w
+        spin_up += state[SPIN, i] * state[OMEGA_DOT, i]
+    h_z = -h_z
+    drag_gain = drag_coefficient * drag
+    # -Omega x (0, 0, h_z) = (-q h_z, p h_z, 0); the reaction to the propellers' spin-up about z
+    return (-drag_gain * air_x, -drag_gain * air_y, -total,
+            mx - q * h_z, (my_even + my_odd) + p * h_z, mz * c_q + spin_up)

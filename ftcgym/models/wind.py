@@ -33,6 +33,7 @@ import math
 
 import numpy as np
 import scipy.linalg
+from numba import njit
 
 from .checks import FINITE, POSITIVE, Range, no_unknown, number, numbers
 
@@ -216,12 +217,9 @@ class DrydenWind:
             return self._mean_tuple
         if self._index == len(self._noise):
             self._refill()
-        z = np.dot(self._transition, self._state)
-        z += self._noise[self._index]
+        wind = self._velocity = _dryden_step(self._transition, self._state, self._noise, self._index)
         self._index += 1
-        self._state = z[:5]
-        self._velocity = z[5:]
-        return tuple(z[5:].tolist())
+        return wind
 
     @property
     def velocity(self) -> np.ndarray:
@@ -253,3 +251,13 @@ def random_mean_wind(rng: np.random.Generator, speed_range) -> list[float]:
     """A horizontal mean wind (NED, m/s): speed uniform in `speed_range` = (lo, hi), direction uniform."""
     speed, direction = rng.uniform(*speed_range), rng.uniform(0.0, 2.0 * np.pi)
     return [float(speed * np.cos(direction)), float(speed * np.sin(direction)), 0.0]
+
+
+@njit(cache=True)
+def _dryden_step(transition, state, noise, index):  # pragma: no cover (compiled)
+    """One step of the discretised filter: z = [Ad; out Ad] x + noise[index] (`DrydenWind._build_filter`); the
+    state x becomes z[:5] (in place) and the wind z[5:] is returned as 3 floats. BLAS's product, as numpy's."""
+    z = np.dot(transition, state)
+    z += noise[index]
+    state[:] = z[:5]
+    return z[5], z[6], z[7]
