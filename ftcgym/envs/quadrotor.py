@@ -28,7 +28,7 @@ from numba import njit
 from ..models.faults import FaultSchedule, parse_faults, resolve
 from ..models.geometry import quat_from_euler
 from ..models.quadrotor import YAW_SIGNS, make_params
-from ..models.rotors import RotorSet, advance_speeds, rotor_loads
+from ..models.rotors import OMEGA, RotorSet, advance_speeds, rotor_loads
 from ..models.sensors import (
     ACCEL_LIMIT,
     GYRO_LIMIT,
@@ -36,6 +36,7 @@ from ..models.sensors import (
     QuadrotorSensors,
     SensorConfig,
     SensorLimits,
+    advance_phase,
     reading_slices,
 )
 from .flight_env import RENDER_SIZE, FlightEnv, check_command
@@ -151,8 +152,7 @@ class QuadrotorEnv(FlightEnv):
         wind = self._wind = self.wind.advance()
         rotors = self.rotors
         loads = physics_loads(rotors.state, rotors.geometry, self._omega_cmd, self._loads_params, self._R_array,
-                              self._v, self._w, wind)
-        self.sensors.advance_rotor_phase(rotors.omega.tolist(), self.dt)
+                              self._v, self._w, wind, self.sensors.rotor_angles)
         self._integrate_world(loads[:3], loads[3:])
 
     def _apply_faults(self) -> None:
@@ -172,11 +172,10 @@ class QuadrotorEnv(FlightEnv):
     def _observe(self) -> dict:
         """The readings and the set-point as views of one fresh array (one allocation per step)."""
         ref = self._reference = self.task.reference(self.time)
-        values = self.sensors.read_floats(self._p, self._v, self._q, self._w, self._sf, self.rotors.omega.tolist())
-        values += ref.position.tolist()
-        values += ref.velocity.tolist()
-        values.append(ref.yaw)
-        flat = np.array(values)
+        flat = self.sensors.sample(self._p, self._v, self._q, self._w, self._sf, self.rotors.omega, extra=7)
+        flat[-7:-4] = ref.position
+        flat[-4:-1] = ref.velocity
+        flat[-1] = ref.yaw
         readings = {key: flat[start:stop] for key, start, stop in _OBSERVATION_SLICES}
         return self._faults.apply_to_sensors(self.time, readings)
 
@@ -213,15 +212,17 @@ class QuadrotorEnv(FlightEnv):
 
 
 @njit(cache=True)
-def physics_loads(rotors, geometry, command, params, R, v, rates, wind):  # pragma: no cover (compiled)
-    """One physics step's rotor speeds (`advance_speeds`, in place on `rotors`) and the loads they and the
-    airframe put on the body, in the world frame: (fx, fy, fz, mx, my, mz) NED.
+def physics_loads(rotors, geometry, command, params, R, v, rates, wind, angles):  # pragma: no cover (compiled)
+    """One physics step's rotor speeds and angles (`advance_speeds`, in place on `rotors`; `advance_phase`, in
+    place on `angles`) and the loads they and the airframe put on the body, in the world frame:
+    (fx, fy, fz, mx, my, mz) NED.
 
     The air velocity in the body frame is R^T (v - wind); the body drag is -D v_air per axis and the
     rotational drag -(D1 + D2 |w|) w (`models.quadrotor`); `params` holds c_T, c_Q, k_d, dt, the gains of
     `RotorSet.gains`, D and (D1, D2) per axis. The rotations into the world frame are BLAS's, as numpy's."""
     c_t, c_q, k_d, dt = params[0], params[1], params[2], params[3]
     advance_speeds(rotors, command, dt, params[4], params[5], params[6], params[7])
+    advance_phase(angles, rotors[OMEGA], dt)
     dx, dy, dz = v[0] - wind[0], v[1] - wind[1], v[2] - wind[2]
     ax = R[0, 0] * dx + R[1, 0] * dy + R[2, 0] * dz
     ay = R[0, 1] * dx + R[1, 1] * dy + R[2, 1] * dz

@@ -7,7 +7,9 @@
 - Attitude: truth perturbed by a small random rotation (an onboard estimator's error; no estimator
   dynamics are simulated, so faults reach it only through the truth). Documented in the env docstring.
 - Position and velocity (motion capture / GNSS-like): sample-and-hold at `position_hz` with white noise.
-Noise is drawn in blocks from the env's generator (one draw per block, not per step) for speed.
+Noise is drawn in blocks from the env's generator (one draw per block, not per step) for speed, and one sample
+of every reading is computed by one compiled call (`_sample`, numba) with the operations of the plain-Python
+model it replaced, so the readings keep their bits.
 """
 from __future__ import annotations
 
@@ -16,6 +18,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from .checks import Range, no_unknown, number
 from .constants import GRAVITY
@@ -28,6 +31,11 @@ _GYRO_LIMIT, _ACCEL_LIMIT = float(GYRO_LIMIT), float(ACCEL_LIMIT)
 # Accepted sensor settings: noise levels and time constants may be 0 (an ideal sensor), rates may not; the
 # upper ends only keep the arithmetic finite (no real sensor comes near them).
 _LEVEL, _RATE = Range(0.0, 1e6), Range(1e-3, 1e6)
+
+
+#: the readings of `QuadrotorSensors.read`, in order, with their sizes
+READINGS = (("gyro", 3), ("accel", 3), ("attitude", 4), ("position", 3), ("velocity", 3), ("rotor_speed", 4))
+_N_READINGS = sum(size for _, size in READINGS)
 
 
 @dataclass(frozen=True)
@@ -87,6 +95,8 @@ class QuadrotorSensors:
         self._scales = np.concatenate([
             np.full(3, c.gyro_noise), np.full(3, c.accel_noise), np.full(3, c.attitude_noise / 2),
             np.full(3, c.position_noise), np.full(3, c.velocity_noise), np.full(n_rotors, c.rotor_speed_noise)])
+        lim = self.limits
+        self._limits = np.array([_GYRO_LIMIT, _ACCEL_LIMIT, lim.position, lim.velocity, lim.rotor_speed])
 
     def reset(self, rng: np.random.Generator) -> None:
         c = self.config
@@ -98,77 +108,85 @@ class QuadrotorSensors:
         dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
         self._gyro_vib_dirs = dirs * c.gyro_vibration
         self._accel_vib_dirs = dirs[:, [1, 2, 0]] * c.accel_vibration
-        self._gyro_vib_rows, self._accel_vib_rows = self._gyro_vib_dirs.tolist(), self._accel_vib_dirs.tolist()
-        self._gyro_bias, self._accel_bias = tuple(self.gyro_bias.tolist()), tuple(self.accel_bias.tolist())
-        self._phase = tuple(rng.uniform(0.0, 2 * np.pi, self.n_rotors).tolist())
-        self._noise = []
+        self._biases = np.concatenate([self.gyro_bias, self.accel_bias])
+        self._phase = rng.uniform(0.0, 2 * np.pi, self.n_rotors)    # rotor angles, advanced every physics step
+        self._noise = np.empty((0, self._scales.size))
         self._row = 0
         self._count = 0
-        self._position = None
-        self._velocity = None
+        self._held = np.zeros(6)         # position and velocity, sampled and held
+
+    rotor_angles = property(lambda self: self._phase, doc="the rotors' angles (rad), advanced in place")
 
     def advance_rotor_phase(self, omega, dt: float) -> None:
         """Integrate the rotor angles (called every physics step, so vibration is not aliased by substeps)."""
-        p0, p1, p2, p3 = self._phase
-        w0, w1, w2, w3 = omega
-        self._phase = ((p0 + w0 * dt) % _TWO_PI, (p1 + w1 * dt) % _TWO_PI, (p2 + w2 * dt) % _TWO_PI,
-                       (p3 + w3 * dt) % _TWO_PI)
+        advance_phase(self._phase, np.asarray(omega, dtype=float), dt)
 
-    def _next_noise(self) -> list:
+    def _next_noise_row(self) -> int:
         if self._row >= len(self._noise):
-            self._noise = (self._rng.standard_normal((_BLOCK, self._scales.size)) * self._scales).tolist()
+            self._noise = self._rng.standard_normal((_BLOCK, self._scales.size)) * self._scales
             self._row = 0
-        row = self._noise[self._row]
         self._row += 1
-        return row
+        return self._row - 1
 
     def read(self, position, velocity, quat, body_rates, specific_force, omega) -> dict:
         """One sample of every sensor, from the true state (NED / FRD; arrays or sequences of floats): a dict of
         fresh arrays (views of one array made per sample), keys and sizes as `READINGS`."""
-        flat = np.array(self.read_floats(position, velocity, quat, body_rates, specific_force, omega))
+        flat = self.sample(position, velocity, quat, body_rates, specific_force, omega)
         return {key: flat[start:stop] for key, start, stop in _READING_SLICES}
 
-    def read_floats(self, position, velocity, quat, body_rates, specific_force, omega) -> list:
-        """`read` as one list of floats, the readings of `READINGS` one after the other."""
-        n = self._next_noise()
-        ref2, (p0, p1, p2, p3) = self._omega_ref2, self._phase
-        w0, w1, w2, w3 = omega
-        v0, v1, v2, v3 = ((w0 * w0 / ref2) * math.sin(p0), (w1 * w1 / ref2) * math.sin(p1),
-                          (w2 * w2 / ref2) * math.sin(p2), (w3 * w3 / ref2) * math.sin(p3))
+    def sample(self, position, velocity, quat, body_rates, specific_force, omega, extra: int = 0) -> np.ndarray:
+        """`read` as one fresh array, the readings of `READINGS` one after the other, then `extra` unset places
+        (for the caller's own entries)."""
+        row = self._next_noise_row()
+        hold = self._count % self._hold_steps == 0
+        self._count += 1
+        return _sample(self._noise[row], self._phase, np.asarray(omega, dtype=float), self._omega_ref2,
+                       self._gyro_vib_dirs, self._accel_vib_dirs, self._biases, self._limits, self._held, hold,
+                       _floats(position), _floats(velocity), _floats(quat), _floats(body_rates),
+                       _floats(specific_force), extra)
+
+
+def _floats(values) -> tuple:
+    """A state vector as the tuple of floats `_sample` is compiled for."""
+    return values if type(values) is tuple else tuple(float(v) for v in values)
+
+
+@njit(cache=True)
+def advance_phase(phase, omega, dt):  # pragma: no cover (compiled)
+    """Rotor angles, in place: (phase + omega dt) mod 2 pi."""
+    for i in range(phase.size):
+        phase[i] = (phase[i] + omega[i] * dt) % _TWO_PI
+
+
+@njit(cache=True)
+def _sample(n, phase, omega, ref2, gyro_vib, accel_vib, biases, limits, held, hold, position, velocity, quat,
+            rates, specific_force, extra):  # pragma: no cover (compiled)
+    """One sample of every reading of `QuadrotorSensors` (module docstring) with the noise row `n`: a fresh array
+    of the `READINGS` then `extra` unset places; `held` (position, velocity) is sampled anew when `hold`."""
+    g, a, p_top, v_top, w_top = limits[0], limits[1], limits[2], limits[3], limits[4]
+    # vibration amplitude of each rotor ~ (omega_i / omega_hover)^2, at its angle
+    v0 = (omega[0] * omega[0] / ref2) * math.sin(phase[0])
+    v1 = (omega[1] * omega[1] / ref2) * math.sin(phase[1])
+    v2 = (omega[2] * omega[2] / ref2) * math.sin(phase[2])
+    v3 = (omega[3] * omega[3] / ref2) * math.sin(phase[3])
+    out = np.empty(_N_READINGS + extra)
+    for i in range(3):
         # vib @ dirs: the pairings are those of BLAS's kernels for these layouts (gyro directions row-major,
         # accel directions column-major), so the readings keep their bits from the numpy version.
-        (g00, g01, g02), (g10, g11, g12), (g20, g21, g22), (g30, g31, g32) = self._gyro_vib_rows
-        gv0 = (v0 * g00 + v1 * g10) + (v2 * g20 + v3 * g30)
-        gv1 = (v0 * g01 + v1 * g11) + (v2 * g21 + v3 * g31)
-        gv2 = (v0 * g02 + v1 * g12) + (v2 * g22 + v3 * g32)
-        (a00, a01, a02), (a10, a11, a12), (a20, a21, a22), (a30, a31, a32) = self._accel_vib_rows
-        av0 = (v0 * a00 + v2 * a20) + (v1 * a10 + v3 * a30)
-        av1 = (v0 * a01 + v2 * a21) + (v1 * a11 + v3 * a31)
-        av2 = (v0 * a02 + v2 * a22) + (v1 * a12 + v3 * a32)
-        gb0, gb1, gb2 = self._gyro_bias
-        ab0, ab1, ab2 = self._accel_bias
-        g, a = _GYRO_LIMIT, _ACCEL_LIMIT
-        if self._count % self._hold_steps == 0:
-            p, v = self.limits.position, self.limits.velocity
-            self._position = (min(max(position[0] + n[9], -p), p), min(max(position[1] + n[10], -p), p),
-                              min(max(position[2] + n[11], -p), p))
-            self._velocity = (min(max(velocity[0] + n[12], -v), v), min(max(velocity[1] + n[13], -v), v),
-                              min(max(velocity[2] + n[14], -v), v))
-        self._count += 1
-        top = self.limits.rotor_speed
-        return [min(max(body_rates[0] + gb0 + n[0] + gv0, -g), g),
-                min(max(body_rates[1] + gb1 + n[1] + gv1, -g), g),
-                min(max(body_rates[2] + gb2 + n[2] + gv2, -g), g),
-                min(max(specific_force[0] + ab0 + n[3] + av0, -a), a),
-                min(max(specific_force[1] + ab1 + n[4] + av1, -a), a),
-                min(max(specific_force[2] + ab2 + n[5] + av2, -a), a),
-                *_perturb_floats(quat, n[6], n[7], n[8]), *self._position, *self._velocity,
-                min(max(w0 + n[15], 0.0), top), min(max(w1 + n[16], 0.0), top),
-                min(max(w2 + n[17], 0.0), top), min(max(w3 + n[18], 0.0), top)]
+        gv = (v0 * gyro_vib[0, i] + v1 * gyro_vib[1, i]) + (v2 * gyro_vib[2, i] + v3 * gyro_vib[3, i])
+        av = (v0 * accel_vib[0, i] + v2 * accel_vib[2, i]) + (v1 * accel_vib[1, i] + v3 * accel_vib[3, i])
+        out[i] = min(max(rates[i] + biases[i] + n[i] + gv, -g), g)
+        out[3 + i] = min(max(specific_force[i] + biases[3 + i] + n[3 + i] + av, -a), a)
+        if hold:
+            held[i] = min(max(position[i] + n[9 + i], -p_top), p_top)
+            held[3 + i] = min(max(velocity[i] + n[12 + i], -v_top), v_top)
+    out[6], out[7], out[8], out[9] = _perturb_floats(quat, n[6], n[7], n[8])
+    out[10:16] = held
+    for i in range(4):
+        out[16 + i] = min(max(omega[i] + n[15 + i], 0.0), w_top)
+    return out
 
 
-#: the readings of `QuadrotorSensors.read`, in order, with their sizes
-READINGS = (("gyro", 3), ("accel", 3), ("attitude", 4), ("position", 3), ("velocity", 3), ("rotor_speed", 4))
 
 
 def reading_slices(readings) -> tuple:
@@ -189,8 +207,9 @@ def _perturb(q, half_angles) -> np.ndarray:
     return np.array(_perturb_floats(q, *half_angles))
 
 
-def _perturb_floats(q, a, b, c) -> tuple:
-    """`_perturb` on plain floats."""
+@njit(cache=True)
+def _perturb_floats(q, a, b, c):
+    """`_perturb` on plain floats (compiled, so `_sample` calls it)."""
     x, y, z, w = q
     out = (w * a + x + y * c - z * b,
            w * b - x * c + y + z * a,
