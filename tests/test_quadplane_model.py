@@ -9,7 +9,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from ftcgym.agents.quadplane_trim import trim
-from ftcgym.models.pusher import PusherMotor, pusher_thrust, steady_state_current, throttle_for_speed
+from ftcgym.models.pusher import (
+    PusherMotor,
+    pusher_aero_torque,
+    pusher_thrust,
+    steady_state_current,
+    throttle_for_speed,
+)
 from ftcgym.models.quadplane_aero import aero_wrench, hover_rotor_wrench, skew_schedule, stall_speed
 from ftcgym.models.vsqp import RPM, VSQP, make_vsqp_params
 
@@ -124,6 +130,21 @@ def test_faults_raise_current_at_the_same_speed(handle, value):
     setattr(same_throttle, handle, value)
     settle(same_throttle, throttle_for_speed(P, omega, v), v)
     assert same_throttle.omega < nominal.omega
+
+
+def test_pusher_motor_evaluates_the_module_formulas_bit_for_bit():
+    """`PusherMotor.step` takes the formulas' constant factors once; its thrust and torque stay those of
+    `pusher_thrust` and `pusher_aero_torque` (001 eq. 13-14, 003 eq. 2-5) exactly."""
+    motor, dt = PusherMotor(P), 0.002
+    motor.theta_1 = 1.3
+    for throttle, v in [(1.0, 0.0)] * 50 + [(0.7, 12.0), (0.3, -2.0), (0.0, 20.0), (0.5, 25.0)]:
+        before = motor.omega
+        motor.step(throttle, v, dt)
+        assert motor.thrust == pusher_thrust(P, motor.omega, v)
+        q_a = pusher_aero_torque(P, motor.omega, v, 1.3) if motor.omega > 0.0 else 0.0
+        omega_dot = (motor.omega - before) / dt
+        assert motor.torque == -P.pusher_spin_direction * (q_a + P.pusher_inertia * omega_dot)
+    assert motor.omega > 0.0
 
 
 def test_pusher_rejects_non_finite_input():

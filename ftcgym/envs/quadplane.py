@@ -31,7 +31,7 @@ from gymnasium import spaces
 from ..models.faults import QUADPLANE_KINDS, FaultSchedule, parse_faults, resolve
 from ..models.geometry import quat_from_euler
 from ..models.pusher import PusherMotor
-from ..models.quadplane_aero import aero_wrench_floats
+from ..models.quadplane_aero import QuadPlaneAero
 from ..models.rotors import RotorSet
 from ..models.sensors import ACCEL_LIMIT, GYRO_LIMIT, QuadPlaneSensorConfig, QuadPlaneSensors, SensorLimits
 from ..models.vsqp import make_vsqp_params
@@ -91,6 +91,7 @@ class QuadPlaneEnv(FlightEnv):
                                      p.hover_torque_coefficient, p.hover_omega_min, p.hover_omega_max,
                                      p.hover_time_constant, p.hover_max_acceleration, p.propeller_inertia, 0.0,
                                      UNLOADED_SPEED_RATIO, UNLOADED_TIME_CONSTANT)
+        self.aero = QuadPlaneAero(p)
         self.pusher = PusherMotor(p)
         self._nominal_pusher = {name: getattr(self.pusher, name) for name in ("theta_1", "c_v", "I_0")}
         high = {key: top[0] for key, (_, top) in self._limits.items()}
@@ -131,8 +132,7 @@ class QuadPlaneEnv(FlightEnv):
         self.pusher.reset(0.0)
         self.skew = 0.0
         self._skew_cmd = 0.0
-        self.surfaces = np.zeros(3)
-        self._surface_cmd = np.zeros(3)
+        self.surfaces = self._surface_cmd = (0.0, 0.0, 0.0)
         self._omega_cmd = [0.0] * 4
         self._throttle = 0.0
         self._apply_faults()
@@ -159,18 +159,18 @@ class QuadPlaneEnv(FlightEnv):
     def _set_commands(self, command: np.ndarray) -> None:
         self._omega_cmd = self.hover_rotors.command_to_omega(command[:4]).tolist()
         self._throttle = float(command[4])
-        self._surface_cmd = command[5:8] * self._surface_limit
+        self._surface_cmd = (command[5:8] * self._surface_limit).tolist()
         self._skew_cmd = float(command[8]) * 0.5 * np.pi
 
     def _physics_step(self) -> None:
-        dt, p, rotors = self.dt, self.params, self.hover_rotors
+        dt, rotors = self.dt, self.hover_rotors
         omega, _ = rotors.advance(self._omega_cmd, dt)
         self._move_wing_and_surfaces(dt)
         self._wind = self.wind.advance()
         air_body = self._air_velocity()
         self.pusher.step(self._throttle, max(air_body[0], 0.0), dt)
-        force, moment = aero_wrench_floats(p, air_body, self._w, self.skew, self.surfaces, omega,
-                                           rotors.effectiveness.tolist(), self.pusher.thrust, self.pusher.torque)
+        force, moment = self.aero.wrench(air_body, self._w, self.skew, self.surfaces, omega,
+                                         rotors.effectiveness.tolist(), self.pusher.thrust, self.pusher.torque)
         self.sensors.advance_rotor_phase(omega, dt)
         self._integrate(force, moment)
         self._air_body = air_body
@@ -186,7 +186,8 @@ class QuadPlaneEnv(FlightEnv):
         """The wing turns toward its command at the skew rate limit; surfaces follow their servos' lag."""
         step = self.params.skew_rate_limit * dt
         self.skew += min(max(self._skew_cmd - self.skew, -step), step)
-        self.surfaces += self._surface_alpha * (self._surface_cmd - self.surfaces)
+        alpha, (c0, c1, c2), (s0, s1, s2) = self._surface_alpha, self._surface_cmd, self.surfaces
+        self.surfaces = (s0 + alpha * (c0 - s0), s1 + alpha * (c1 - s1), s2 + alpha * (c2 - s2))
 
     def _apply_faults(self) -> None:
         """Hover-rotor and pusher faults in force from `self.time` on."""
@@ -233,7 +234,7 @@ class QuadPlaneEnv(FlightEnv):
                 "body_rates": np.array(self._w), "wind": np.array(self._wind), "airspeed": self.airspeed(),
                 "air_velocity_body": np.array(self._air_body), "angle_of_attack": self.angle_of_attack(),
                 "mass": self.params.mass, "rotor_effectiveness": rotors.effectiveness.copy(),
-                "rotor_speed": rotors.omega.copy(), "skew": self.skew, "surfaces": self.surfaces.copy(),
+                "rotor_speed": rotors.omega.copy(), "skew": self.skew, "surfaces": np.array(self.surfaces),
                 "pusher": {"omega": pusher.omega, "current": pusher.current, "thrust": pusher.thrust,
                            "theta_1": pusher.theta_1, "c_v": pusher.c_v, "I_0": pusher.I_0},
             }

@@ -48,13 +48,6 @@ def pusher_aero_torque(params, omega, axial_speed, theta_1: float = 1.0):
     return theta_1 * params.air_density * d ** 5 * (cq0 * n * n + cq1 * n * v / d + cq2 * v * v / (d * d))
 
 
-def _aero_torque_slope(params, omega: float, axial_speed: float, theta_1: float) -> float:
-    """dQ_a/dw, for the linearly implicit integration step."""
-    n, v, d = _revs(omega), max(axial_speed, 0.0), params.pusher_diameter
-    cq0, cq1, _ = params.pusher_torque_coefficients
-    return theta_1 * params.air_density * d ** 5 * (2.0 * cq0 * n + cq1 * v / d) / TWO_PI
-
-
 def steady_state_current(params, omega: float, axial_speed: float, theta_1: float | None = None,
                          c_v: float | None = None, I_0: float | None = None) -> float:
     """I_e holding w constant: 003 eq. (1) with dw/dt = 0, I_e = I_0 + (c_v w + Q_a) / k_e."""
@@ -82,6 +75,9 @@ class PusherMotor:
 
     def __init__(self, params):
         self.params = params
+        d = params.pusher_diameter
+        # the formulas' constant factors, for `step` (equal to the module functions' own, bit for bit)
+        self._d, self._d2, self._d5, self._rho_d4 = d, d * d, d ** 5, params.air_density * d ** 4
         self.theta_1 = params.pusher_icing
         self.c_v = params.pusher_viscous_friction
         self.I_0 = params.pusher_zero_load_current
@@ -102,24 +98,41 @@ class PusherMotor:
         current = (throttle * p.battery_voltage - p.pusher_motor_constant * omega) / p.pusher_resistance
         return min(max(current, 0.0), p.pusher_max_current)   # no regeneration; the ESC's current limit
 
+    def _aero_torque(self, n: float, v: float) -> float:
+        """`pusher_aero_torque` at n rev/s and forward airspeed v >= 0 (003 eq. 2-5), with this motor's theta_1."""
+        cq0, cq1, cq2 = self.params.pusher_torque_coefficients
+        return self.theta_1 * self.params.air_density * self._d5 * (cq0 * n * n + cq1 * n * v / self._d
+                                                                    + cq2 * v * v / self._d2)
+
+    def _aero_torque_slope(self, n: float, v: float) -> float:
+        """dQ_a/dw (d/dw of `_aero_torque`, n = w / 2 pi), for the linearly implicit integration step."""
+        cq0, cq1, _ = self.params.pusher_torque_coefficients
+        return self.theta_1 * self.params.air_density * self._d5 * (2.0 * cq0 * n + cq1 * v / self._d) / TWO_PI
+
+    def _thrust(self, n: float, v: float) -> float:
+        """`pusher_thrust` at n rev/s and forward airspeed v >= 0 (001 eq. 13-14)."""
+        b, a = self.params.pusher_thrust_coefficients
+        return self._rho_d4 * (b * n * n + a * n * v / self._d) + self.params.pusher_thrust_k3 * v
+
     def step(self, throttle: float, axial_airspeed: float, dt: float) -> None:
         """Advance w by dt with 003 eq. (1), linearly implicit in w so any dt is stable."""
         if not (math.isfinite(throttle) and math.isfinite(axial_airspeed) and dt > 0.0):
             raise ValueError(f"PusherMotor.step: throttle {throttle!r} and airspeed {axial_airspeed!r} must be "
                              f"finite and dt {dt!r} positive")
         p, k_e = self.params, self.params.pusher_motor_constant
-        u = min(max(throttle, 0.0), 1.0)
+        u, v = min(max(throttle, 0.0), 1.0), max(axial_airspeed, 0.0)
         w = self.omega
+        n = w / TWO_PI
         current = self._electric_current(u, w)
-        q_a = pusher_aero_torque(p, w, axial_airspeed, self.theta_1)
-        net = k_e * (current - self.I_0) - self.c_v * w - q_a                    # 003 eq. (1) right side
+        net = k_e * (current - self.I_0) - self.c_v * w - self._aero_torque(n, v)   # 003 eq. (1) right side
         back_emf_slope = k_e * k_e / p.pusher_resistance if 0.0 < current < p.pusher_max_current else 0.0
-        damping = back_emf_slope + self.c_v + _aero_torque_slope(p, w, axial_airspeed, self.theta_1)
+        damping = back_emf_slope + self.c_v + self._aero_torque_slope(n, v)
         w_new = w + dt * net / (p.pusher_inertia + dt * max(damping, 0.0))
         w_new = min(max(w_new, 0.0), p.pusher_omega_max)   # static friction holds it at 0; ESC speed limit
         omega_dot = (w_new - w) / dt
+        n = w_new / TWO_PI
         self.omega = w_new
         self.current = self._electric_current(u, w_new)
-        self.thrust = pusher_thrust(p, w_new, axial_airspeed)
-        q_new = pusher_aero_torque(p, w_new, axial_airspeed, self.theta_1) if w_new > 0.0 else 0.0
+        self.thrust = self._thrust(n, v)
+        q_new = self._aero_torque(n, v) if w_new > 0.0 else 0.0
         self.torque = -p.pusher_spin_direction * (q_new + p.pusher_inertia * omega_dot)

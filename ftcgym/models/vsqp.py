@@ -1,7 +1,7 @@
 """Variable Skew Quad Plane (VSQP) parameter set: plain data, every number with its source.
 
 Pure numpy (no simulator import). The aerodynamic model that uses these numbers is
-`ftcgym/envs/quadplane_aero.py`; the pusher's electric propulsion model is `ftcgym/envs/pusher.py`.
+`ftcgym/models/quadplane_aero.py`; the pusher's electric propulsion model is `ftcgym/models/pusher.py`.
 
 Frames and signs. Body FRD (x forward, y right, z down), SI units, angles in rad. Skew Lambda: 0 = hover
 (wing along the fuselage, over it), pi/2 = forward flight (wing spanwise), 001 Sec. 2. The wing's span
