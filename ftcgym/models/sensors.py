@@ -202,14 +202,10 @@ def _saturate(x: np.ndarray, limit: float) -> np.ndarray:
     return np.minimum(np.maximum(x, -limit), limit)
 
 
-def _perturb(q, half_angles) -> np.ndarray:
-    """q (x) [half_angles, 1], normalised: q rotated by a small body-frame rotation."""
-    return np.array(_perturb_floats(q, *half_angles))
-
-
 @njit(cache=True)
 def _perturb_floats(q, a, b, c):
-    """`_perturb` on plain floats (compiled, so `_sample` calls it)."""
+    """q (x) [a, b, c, 1], normalised: the quaternion q rotated by a small body-frame rotation of half-angles
+    (a, b, c) (compiled, for `_sample`)."""
     x, y, z, w = q
     out = (w * a + x + y * c - z * b,
            w * b - x * c + y + z * a,
