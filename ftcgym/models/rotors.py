@@ -37,6 +37,7 @@ class RotorSet:
         self.unloaded_speed_ratio = unloaded_speed_ratio
         n = len(self.positions)
         self.state = np.zeros((5, n))
+        self._rows = tuple(self.state)
         self.effectiveness[:] = 1.0
         self.loaded = np.ones(n, dtype=bool)
         self._gain_dt = None
@@ -51,10 +52,10 @@ class RotorSet:
                    params.max_rotor_acceleration, params.propeller_inertia, params.rotor_drag_coefficient,
                    params.unloaded_speed_ratio, params.unloaded_time_constant)
 
-    # Rows of `state` (views: writes go to the state the compiled step reads).
-    omega = property(lambda self: self.state[OMEGA], doc="rotor speeds (rad/s)")
-    omega_dot = property(lambda self: self.state[OMEGA_DOT], doc="rotor accelerations (rad/s^2)")
-    effectiveness = property(lambda self: self.state[EFFECTIVENESS], doc="loss-of-effectiveness factors k_i")
+    # Rows of `state`, the same view objects every time (writes go to the state the compiled step reads).
+    omega = property(lambda self: self._rows[OMEGA], doc="rotor speeds (rad/s)")
+    omega_dot = property(lambda self: self._rows[OMEGA_DOT], doc="rotor accelerations (rad/s^2)")
+    effectiveness = property(lambda self: self._rows[EFFECTIVENESS], doc="loss-of-effectiveness factors k_i")
 
     @omega.setter
     def omega(self, value) -> None:
