@@ -9,6 +9,7 @@ from scipy.stats import norm
 
 from ftcgym.agents import make_policy
 from ftcgym.fdd import LoeKalmanDetector, loe_kalman_wrapper
+from ftcgym.fdd.base import Biquad
 from ftcgym.fdd.loe_kalman import SIGNS_000, failure_probability, kalman_step, lowpass_coefficients
 
 
@@ -40,6 +41,31 @@ def test_covariance_stays_symmetric_positive_semidefinite(omega, z, steps):
     assert np.all((x >= 0.0) & (x <= 1.5))
 
 
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.floats(300, 1300), min_size=4, max_size=4), st.lists(st.floats(-200, 200), min_size=3, max_size=3),
+       st.lists(st.floats(0.0, 1.5), min_size=4, max_size=4), st.integers(0, 2**32 - 1))
+def test_detector_step_by_cholesky_equals_the_joseph_form_step(omega, z, x, seed):
+    """The detector's Kalman step (gain through the Cholesky factor of S) is `kalman_step` (solve, Joseph form) up
+    to rounding, on random states and covariances."""
+    det = LoeKalmanDetector(1 / 500, R=0.7)
+    A = np.random.default_rng(seed).normal(0.0, 0.2, (4, 4))
+    det.x, det.P = np.array(x), A @ A.T + 1e-4 * np.eye(4)
+    H = det.B * np.square(omega)
+    x_ref, P_ref = kalman_step(det.x, det.P, np.array(z), H, det.Q, 0.7 * np.eye(3))
+    assert det._kalman_step(z, H) == det.x.tolist()
+    np.testing.assert_allclose(det.x, x_ref, rtol=0, atol=1e-11)       # 6e-13 at most in 5000 random cases
+    np.testing.assert_allclose(det.P, P_ref, rtol=0, atol=1e-11 * np.abs(P_ref).max())   # there 4e-13
+    assert np.array_equal(det.P, det.P.T)
+
+
+def test_lowpass_on_a_list_of_channels_gives_the_bits_of_the_array_path():
+    b, a = lowpass_coefficients(50.0, 0.55, 1 / 500)
+    samples = np.random.default_rng(2).normal(700.0, 30.0, (200, 7))
+    on_array, on_list = Biquad(b, a), Biquad(b, a)
+    for sample in samples:
+        assert on_list(sample.tolist()) == on_array(sample).tolist()
+
+
 @pytest.mark.parametrize("k_hat, var", [(1.0, 0.04), (0.3, 0.01), (0.1, 0.2), (0.25, 1.0)])
 def test_failure_probability_is_the_normal_cdf(k_hat, var):
     """Corrected eq. (15): P(k < k_thres) for k ~ N(k_hat, var)."""
@@ -62,6 +88,12 @@ def test_not_armed_on_the_ground():
     for i in range(500):
         det.update({"gyro": np.zeros(3), "accel": np.array([0, 0, -9.81]), "rotor_speed": np.full(4, 300.0)}, i / 500)
     assert not det.armed and not det.status()["alarm"] and np.all(det.x == 1.0)
+
+
+@pytest.mark.parametrize("R", [0.0, -1.0, float("nan")])
+def test_measurement_noise_must_be_positive(R):
+    with pytest.raises(ValueError, match="R: must be a finite number > 0"):
+        LoeKalmanDetector(1 / 500, R=R)
 
 
 def test_nan_reading_is_rejected():

@@ -38,13 +38,13 @@ class Detector(Protocol):
 
 
 class Biquad:
-    """A second-order IIR filter (b, a) run one sample at a time, direct form II transposed, on a scalar or on
-    several channels at once; it starts at steady state on its first sample (no start-up transient).
+    """A second-order IIR filter (b, a) run one sample at a time, direct form II transposed, on a scalar, a list of
+    channels or an array of channels; it starts at steady state on its first sample (no start-up transient).
 
-    Per sample: y = b0 x + z0; z0 <- b1 x - a1 y + z1; z1 <- b2 x - a2 y. A scalar runs on Python floats, several
-    channels as three whole-array products (b x, a y) and two sums; the same operations in the same order as
-    the plain form, so the output is bit-identical to it (the per-call cost of numpy, not arithmetic,
-    dominates at this size)."""
+    Per sample: y = b0 x + z0; z0 <- b1 x - a1 y + z1; z1 <- b2 x - a2 y. A scalar, or a list (returning a list),
+    runs on Python floats; an array as three whole-array products (b x, a y) and two sums. Each is the same
+    operations in the same order as the plain form, so the outputs are bit-identical to it (the per-call cost of
+    numpy, not arithmetic, dominates at this size: a list of 7 channels costs a third of the array's)."""
 
     def __init__(self, b, a):
         a = np.asarray(a, dtype=float)
@@ -59,8 +59,10 @@ class Biquad:
     def __call__(self, x):
         if self.z is None:
             self.z = np.multiply.outer(signal.lfilter_zi(self.b, self.a), x)
-            if self.z.ndim == 1:                                  # a scalar: its state as two floats
+            if self.z.ndim == 1 or isinstance(x, list):           # on floats: the state as two floats or lists
                 self.z = tuple(self.z.tolist())
+        if isinstance(x, list):
+            return self._channels(x)
         if isinstance(self.z, tuple):
             (b0, b1, b2), (_, a1, a2), (z0, z1) = self._b_float, self._a_float, self.z
             y = b0 * x + z0
@@ -71,6 +73,18 @@ class Biquad:
         z = bx[1:] - self._a_column * y                           # b1 x - a1 y, b2 x - a2 y
         z[0] += self.z[1]
         self.z = z
+        return y
+
+    def _channels(self, x: list) -> list:
+        """One sample of a list of channels, on floats."""
+        (b0, b1, b2), (_, a1, a2) = self._b_float, self._a_float
+        y, z0, z1 = [], [], []
+        for xi, z0i, z1i in zip(x, *self.z):
+            yi = b0 * xi + z0i
+            y.append(yi)
+            z0.append(b1 * xi - a1 * yi + z1i)
+            z1.append(b2 * xi - a2 * yi)
+        self.z = (z0, z1)
         return y
 
 

@@ -69,8 +69,8 @@ class LoeCusumSettings:
 
 
 class LoeCusumDetector:
-    """Rotor-loss detector (module docstring). Readings: `gyro` (rad/s, FRD), `accel` (m/s^2), `rotor_speed`
-    (rad/s); `command` (normalised rotor commands in [0, 1]) for the motor-speed test.
+    """Rotor-loss detector (module docstring). Readings (numpy arrays): `gyro` (rad/s, FRD), `accel` (m/s^2),
+    `rotor_speed` (rad/s); `command` (normalised rotor commands in [0, 1]) for the motor-speed test.
 
     Parameters: dt (sample time) and the settings (`LoeCusumSettings`; each field also a keyword).
     """
@@ -95,6 +95,7 @@ class LoeCusumDetector:
                 raise ValueError(f"{field}: must be a finite number > 0, got {value!r}")
         self.B = B
         self._rows = B.tolist()
+        self._shift_columns = [[-s.fault_fraction * b for b in column] for column in B.T.tolist()]  # theta_i/omega_i^2
         self._inverse_variance = (1.0 / sigma ** 2).tolist()
         self._baseline_gain = 1.0 - math.exp(-self.dt / s.baseline_time_constant)
         self._motor_gain = 1.0 - math.exp(-self.dt / s.motor_time_constant)
@@ -114,48 +115,47 @@ class LoeCusumDetector:
         self._alarm.reset()
 
     def update(self, readings: dict, time: float, command=None) -> None:
-        gyro, accel, speed = readings["gyro"], readings["accel"], readings["rotor_speed"]
-        sample = np.array((gyro[0], gyro[1], accel[2], *speed), dtype=float)
-        if not math.isfinite(sum(sample.tolist())) or (command is not None and not np.all(np.isfinite(command))):
+        gyro, accel, speed = readings["gyro"].tolist(), readings["accel"].tolist(), readings["rotor_speed"].tolist()
+        sample = [gyro[0], gyro[1], accel[2], *speed]
+        command = None if command is None else np.asarray(command, dtype=float).tolist()
+        if not math.isfinite(sum(sample)) or (command is not None and not math.isfinite(sum(command))):
             _reject_non_finite(readings, command)
         s = self.settings
-        speed = sample[3:].tolist()
         self._speed_test(speed, command)
-        filtered = self._filter(sample).tolist()
+        filtered = self._filter(sample)
         previous, self._previous_rates = self._previous_rates, filtered
         omega2 = [w * w for w in filtered[3:]]
         B = self._rows
         if not self.armed:
-            self.armed = abs(sum(b * w for b, w in zip(B[2], omega2))) >= s.takeoff_fraction * GRAVITY
+            self.armed = abs(_dot(B[2], omega2)) >= s.takeoff_fraction * GRAVITY
         if previous is None or not self.armed:
             return
         z = ((filtered[0] - previous[0]) / self.dt, (filtered[1] - previous[1]) / self.dt, filtered[2])
-        r = [zc - sum(b * w for b, w in zip(row, omega2)) for zc, row in zip(z, B)]   # 000 eq. (12), k = 1
+        r = [zc - _dot(row, omega2) for zc, row in zip(z, B)]                   # 000 eq. (12), k = 1
         if self._baseline is None:
-            self._baseline = list(r)
-        e = [rc - bc for rc, bc in zip(r, self._baseline)]
+            self._baseline = r
+        e = self.residual = [rc - bc for rc, bc in zip(r, self._baseline)]
         gain = self._baseline_gain
         self._baseline = [bc + gain * (rc - bc) for rc, bc in zip(r, self._baseline)]
-        self.residual = e
-        nu, inv = s.fault_fraction, self._inverse_variance
-        for i in range(4):
-            theta = [-nu * row[i] * omega2[i] for row in B]                       # 000 eq. (12), k_i = 0
-            step = sum(t * w * (ec - 0.5 * t) for t, w, ec in zip(theta, inv, e))  # LLR, Basseville & Nikiforov
-            self.cusum[i] = min(max(0.0, self.cusum[i] + step), CUSUM_CEILING)      # Page 1954
+        (e0, e1, e2), (v0, v1, v2) = e, self._inverse_variance
+        for i, ((c0, c1, c2), w) in enumerate(zip(self._shift_columns, omega2)):
+            t0, t1, t2 = c0 * w, c1 * w, c2 * w                                   # theta_i, 000 eq. (12), k_i = 0
+            step = t0 * v0 * (e0 - 0.5 * t0) + t1 * v1 * (e1 - 0.5 * t1) + t2 * v2 * (e2 - 0.5 * t2)  # LLR, B & N
+            self.cusum[i] = min(max(0.0, self.cusum[i] + step), CUSUM_CEILING)    # Page 1954
         use_speed = s.speed_test and command is not None
         candidates = [i for i in range(4) if self.cusum[i] > s.threshold
                       and (not use_speed or self.speed_cusum[i] > s.speed_threshold)]
         if candidates:
             self._alarm.trigger(time, max(candidates, key=lambda i: self.cusum[i]))
 
-    def _speed_test(self, speed: list, command) -> None:
+    def _speed_test(self, speed: list, command: list | None) -> None:
         """Step 5 of the module docstring: the one-step motor-speed residual and its one-sided CUSUM."""
         previous, self._previous_speed = self._previous_speed, speed
         if command is None or previous is None:
             return
         s = self.settings
         span, gain = s.omega_max - s.omega_min, self._motor_gain
-        for i, (w, w_last, u) in enumerate(zip(speed, previous, np.asarray(command, dtype=float).tolist())):
+        for i, (w, w_last, u) in enumerate(zip(speed, previous, command)):
             predicted = w_last + gain * (s.omega_min + u * span - w_last)   # first-order lag (000 Sec. III-A)
             step = (w - predicted) / s.speed_sigma - s.speed_drift
             self.speed_cusum[i] = min(max(0.0, self.speed_cusum[i] + step), CUSUM_CEILING)
@@ -187,6 +187,11 @@ def loe_cusum_wrapper(env, G="vehicle", G_scale: float = 1.0, motor="vehicle", *
         motor = {"motor_time_constant": params.motor_time_constant, "omega_min": params.omega_min,
                  "omega_max": params.omega_max}
     return DetectorWrapper(env, LoeCusumDetector(dt, G=tuple(np.asarray(G) * G_scale), **{**(motor or {}), **kwargs}))
+
+
+def _dot(row: list, values: list) -> float:
+    """The dot product of two lists of 4 floats, summed left to right."""
+    return row[0] * values[0] + row[1] * values[1] + row[2] * values[2] + row[3] * values[3]
 
 
 def _reject_non_finite(readings: dict, command) -> None:

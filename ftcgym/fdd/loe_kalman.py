@@ -56,15 +56,31 @@ def failure_probability(k_hat, variance, k_threshold: float) -> np.ndarray:
     deviation (erratum, docs/references.md); this is the intended value, the normal CDF at k_thres.
     """
     k_hat, variance = np.broadcast_arrays(np.asarray(k_hat, dtype=float), np.asarray(variance, dtype=float))
-    return _failure_probability(k_hat.ravel().tolist(), variance.ravel().tolist(), k_threshold).reshape(k_hat.shape)
+    return np.reshape(_failure_probability(k_hat.ravel().tolist(), variance.ravel().tolist(), k_threshold), k_hat.shape)
 
 
-def _failure_probability(k_hat: list, variance: list, k_threshold: float) -> np.ndarray:
+def _failure_probability(k_hat: list, variance: list, k_threshold: float) -> list:
     """`failure_probability` on lists of floats: the same operations per element as on arrays (math.sqrt and max
     round as np.sqrt and np.maximum do), without numpy's per-call cost; erf stays scipy's."""
     root2 = math.sqrt(2.0)
-    arguments = [(k_threshold - k) / (math.sqrt(max(v, 1e-300)) * root2) for k, v in zip(k_hat, variance)]
-    return 0.5 * (1.0 + erf(np.array(arguments)))
+    return [0.5 * (1.0 + float(erf((k_threshold - k) / (math.sqrt(max(v, 1e-300)) * root2))))
+            for k, v in zip(k_hat, variance)]
+
+
+def _inverse_cholesky_factor(S: list, r: float) -> tuple:
+    """M = L^-1 (rows of floats) for L the lower-triangular Cholesky factor of A = S + r I = L L^T, S a symmetric
+    3 x 3 (rows of floats). L column by column, l_jj = sqrt(a_jj - sum_k<j l_jk^2), l_ij = (a_ij - sum_k<j l_ik l_jk)
+    / l_jj (Golub & Van Loan, Matrix Computations, 4th ed., 2013, Sec. 4.2); then M, lower triangular, by forward
+    substitution: m_ii = 1 / l_ii, m_ij = -m_ii sum_j<=k<i l_ik m_kj (ibid. Sec. 3.1)."""
+    (s00, s01, s02), (_, s11, s12), (_, _, s22) = S
+    l00 = math.sqrt(s00 + r)
+    l10, l20 = s01 / l00, s02 / l00
+    l11 = math.sqrt(s11 + r - l10 * l10)
+    l21 = (s12 - l20 * l10) / l11
+    l22 = math.sqrt(s22 + r - l20 * l20 - l21 * l21)
+    m00, m11, m22 = 1.0 / l00, 1.0 / l11, 1.0 / l22
+    m10 = -m11 * l10 * m00
+    return (m00, 0.0, 0.0), (m10, m11, 0.0), (-m22 * (l20 * m00 + l21 * m10), -m22 * l21 * m11, m22)
 
 
 def kalman_step(x, P, z, H, Q, R, k_bounds=(0.0, 1.5)):
@@ -102,7 +118,8 @@ def effectiveness_matrix(settings) -> np.ndarray:
     return B
 
 class LoeKalmanDetector:
-    """000's LOE detector. Readings: `gyro` (rad/s, FRD), `accel` (specific force, m/s^2), `rotor_speed` (rad/s).
+    """000's LOE detector. Readings (numpy arrays): `gyro` (rad/s, FRD), `accel` (specific force, m/s^2),
+    `rotor_speed` (rad/s).
 
     Parameters: dt (sample time; 000 runs at 500 Hz) and the settings (`LoeKalmanSettings`, defaults 000 Table II
     and Sec. IV-A; each field also a keyword). `effectiveness_matrix` serves a vehicle with other geometry or
@@ -118,7 +135,11 @@ class LoeKalmanDetector:
             raise ValueError(f"dt: must be a finite number > 0, got {dt!r}")
         self.dt = float(dt)
         self.B = effectiveness_matrix(s)
-        self.Q, self.R = s.Q * np.eye(4), s.R * np.eye(3)
+        self._heave_row = self.B[2].tolist()
+        self._omega2_rows = np.empty((3, 4))
+        if not (math.isfinite(s.R) and s.R > 0):                   # S = H P H^T + R must be positive definite
+            raise ValueError(f"R: must be a finite number > 0, got {s.R!r}")
+        self.Q, self.r = s.Q * np.eye(4), float(s.R)
         self.k_threshold, self.p_fail_threshold = s.k_threshold, s.p_fail_threshold
         self.k_bounds = s.k_bounds
         self.takeoff_fraction = s.takeoff_fraction
@@ -130,50 +151,59 @@ class LoeKalmanDetector:
     def reset(self) -> None:
         self.x = np.ones(4)
         self.P = self.initial_variance * np.eye(4)
-        self.p_fail = np.zeros(4)
+        self.p_fail = [0.0] * 4
         self._filter = Biquad(*self._coefficients)
         self._previous_rates = None
         self.armed = False
         self._alarm.reset()
 
     def update(self, readings: dict, time: float, command=None) -> None:
-        sample = np.concatenate((readings["gyro"][:2], readings["accel"][2:3], readings["rotor_speed"]))
-        if not math.isfinite(sum(sample.tolist())):                 # one check; the key only on failure
+        gyro, accel = readings["gyro"].tolist(), readings["accel"].tolist()
+        sample = [gyro[0], gyro[1], accel[2], *readings["rotor_speed"].tolist()]
+        if not math.isfinite(sum(sample)):                           # one check; the key only on failure
             _reject_non_finite(readings)
         filtered = self._filter(sample)
-        omega_f = filtered[3:]
         previous, self._previous_rates = self._previous_rates, filtered
-        omega2 = omega_f * omega_f
+        omega2 = [w * w for w in filtered[3:]]
         if not self.armed:
-            self.armed = bool(abs(self.B[2] @ omega2) >= self.takeoff_fraction * GRAVITY)
+            self.armed = abs(sum(b * w for b, w in zip(self._heave_row, omega2))) >= self.takeoff_fraction * GRAVITY
         if previous is None or not self.armed:
             return
-        z = (filtered[:3] - previous[:3]) / self.dt                  # eq. (10): p_dot, q_dot by backward difference
-        z[2] = filtered[2]                                           # eq. (13): a_z itself
-        H = self.B * omega2                                          # eq. (12): B diag(omega^2)
-        self.x, self.P = self._kalman_step(z, H)
-        self.p_fail = _failure_probability(self.x.tolist(), self.P.diagonal().tolist(), self.k_threshold)
-        p_fail = self.p_fail.tolist()
-        worst = max(p_fail)
+        z = [(filtered[0] - previous[0]) / self.dt,                  # eq. (10): p_dot, q_dot by backward difference
+             (filtered[1] - previous[1]) / self.dt, filtered[2]]     # eq. (13): a_z itself
+        self._omega2_rows[:] = omega2                                # omega^2 on every row: H without broadcasting
+        k_hat = self._kalman_step(z, self.B * self._omega2_rows)     # eq. (12): H = B diag(omega^2)
+        self.p_fail = _failure_probability(k_hat, self.P.diagonal().tolist(), self.k_threshold)
+        worst = max(self.p_fail)
         if worst > self.p_fail_threshold:                           # eq. (16)
-            self._alarm.trigger(time, p_fail.index(worst))
+            self._alarm.trigger(time, self.p_fail.index(worst))
 
-    def _kalman_step(self, z, H):
-        """`kalman_step` (000 Algorithm 1, then the bound on k) by the same operations in the same order, bit for
-        bit, with the prediction's symmetrisation left out: P_k-1 leaves the update exactly symmetric, and so
-        P + Q, whose 0.5 (P + P^T) is then P + Q again."""
+    def _kalman_step(self, z: list, H: np.ndarray) -> list:
+        """`kalman_step` (000 Algorithm 1, then the bound on k; R = r I) with the gain through the Cholesky factor
+        L of the innovation covariance instead of a solve; sets x and P, returns x as floats:
+            P- = P + Q,  U = P- H^T,  S = H U + R = L L^T,  V = U L^-T  (the gain K = U S^-1 = V L^-1),
+            x+ = x + V L^-1 (z - H x),  P+ = P- - K S K^T = P- - V V^T.
+        For this gain P+ equals the Joseph form `kalman.update` uses (Simon 2006, eq. 5.19); here it is exactly
+        symmetric (V V^T by a symmetric product). It differs from `kalman_step` by rounding only."""
         P = self.P + self.Q                                          # P_k|k-1 = P_k-1 + Q
-        x, P, _, _ = kalman.update(self.x, P, z - H.dot(self.x), H, self.R)
+        U = P.dot(H.T)
+        L_inv = _inverse_cholesky_factor(H.dot(U).tolist(), self.r)
+        V = U.dot(np.array(L_inv).T)
+        (i00, _, _), (i10, i11, _), (i20, i21, i22) = L_inv
+        (z0, z1, z2), (h0, h1, h2) = z, H.dot(self.x).tolist()
+        y0, y1, y2 = z0 - h0, z1 - h1, z2 - h2                       # the innovation z - H x
+        w0, w1, w2 = i00 * y0, i10 * y0 + i11 * y1, i20 * y0 + i21 * y1 + i22 * y2   # L^-1 (z - H x)
         lo, hi = self.k_bounds
-        return np.minimum(np.maximum(x, lo), hi), P
+        x = [min(max(k + v0 * w0 + v1 * w1 + v2 * w2, lo), hi) for k, (v0, v1, v2) in zip(self.x.tolist(), V.tolist())]
+        self.x, self.P = np.array(x), P - V.dot(V.T)
+        return x
 
     def outputs(self) -> dict:
-        return {"k_hat": self.x.copy(), "k_var": np.minimum(np.diag(self.P), VARIANCE_CEILING),
-                "p_fail": self.p_fail.copy()}
+        return {"k_hat": self.x.copy(), "k_var": np.minimum(self.P.diagonal(), VARIANCE_CEILING),
+                "p_fail": np.array(self.p_fail)}
 
     def status(self) -> dict:
-        return {**self._alarm.status(), "k_hat": self.x.tolist(), "p_fail": self.p_fail.tolist(),
-                "armed": self.armed}
+        return {**self._alarm.status(), "k_hat": self.x.tolist(), "p_fail": list(self.p_fail), "armed": self.armed}
 
 
 def loe_kalman_wrapper(env, G="vehicle", G_scale: float = 1.0, **kwargs):

@@ -3,6 +3,10 @@
 Like a Gymnasium `ObservationWrapper`, it adds keys to the observation (`fdd/<name>/<field>`) and declares
 them in `observation_space`; it also adds `info["fdd"][<name>]` (alarm, alarm_time, isolated, estimates).
 It reads the observation by key and `info["time"]` only, never simulator internals.
+
+Per step it returns a fresh observation dict (the env's arrays, not copied, plus the detector's outputs) and
+the env's own `info` (envs return a fresh one per step) with `info["fdd"]` replaced by a new dict that keeps
+the entries of inner detector wrappers.
 """
 from __future__ import annotations
 
@@ -47,13 +51,10 @@ class DetectorWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
     def _publish(self, obs, info):
         self._time = float(info["time"])
         obs = self.observation(obs)
-        fdd = dict(info.get("fdd", {}))
-        fdd[self.detector.name] = self.detector.status()
-        return obs, {**info, "fdd": fdd}
+        info["fdd"] = {**info.get("fdd", {}), self.detector.name: self.detector.status()}
+        return obs, info
 
     def observation(self, observation: dict) -> dict:
         self.detector.update(observation, self._time, self._command)
-        out = dict(observation)
-        for field, value in self.detector.outputs().items():
-            out[self.prefix + field] = value
-        return out
+        prefix = self.prefix
+        return {**observation, **{prefix + field: value for field, value in self.detector.outputs().items()}}

@@ -1,0 +1,35 @@
+"""DetectorWrapper's per-step contract: a new observation dict holding the env's own arrays and the detector's
+outputs, the env's `info` with `info["fdd"]` keeping the entries of inner detector wrappers, and outputs that later
+steps leave unchanged."""
+import gymnasium as gym
+import numpy as np
+from conftest import LIGHT_WIND, make_env
+
+from ftcgym.fdd import wrap_with_detector
+
+
+class _Spy(gym.Wrapper):
+    """Keeps the last (obs, reward, terminated, truncated, info) of the env it wraps."""
+
+    def step(self, action):
+        self.last = self.env.step(action)
+        return self.last
+
+
+def test_stacked_wrappers_pass_the_env_arrays_and_keep_each_status():
+    spy = _Spy(make_env(wind=LIGHT_WIND))
+    env = wrap_with_detector("loe_kalman", wrap_with_detector("loe_cusum", spy))
+    obs, info = env.reset(seed=5)
+    assert set(info["fdd"]) == {"loe_cusum", "loe_kalman"} and env.observation_space.contains(obs)
+    hover = np.full(4, 0.5, dtype=np.float32)
+    published = []
+    for _ in range(50):
+        obs, _, _, _, info = env.step(hover)
+        env_obs, env_info = spy.last[0], spy.last[4]
+        assert obs is not env_obs and all(obs[key] is value for key, value in env_obs.items())
+        assert info is env_info and set(info["fdd"]) == {"loe_cusum", "loe_kalman"}
+        assert info["fdd"]["loe_kalman"] == env.detector.status()
+        published.append((obs, {key: obs[key].copy() for key in obs if key.startswith("fdd/")}))
+    assert set(obs) == set(env.observation_space.spaces) and env.observation_space.contains(obs)
+    for obs, copies in published:                               # no output array was reused or changed in place
+        assert all(np.array_equal(obs[key], value) for key, value in copies.items())
