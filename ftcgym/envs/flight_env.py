@@ -242,8 +242,8 @@ class FlightEnv(gym.Env):
     def _with_reference(self, readings: dict) -> dict:
         """The readings plus the task's set-point now (observation keys reference_*)."""
         ref = self._reference = self.task.reference(self.time)
-        readings["reference_position"] = ref.position
-        readings["reference_velocity"] = ref.velocity
+        readings["reference_position"] = ref.position.copy()
+        readings["reference_velocity"] = ref.velocity.copy()
         readings["reference_yaw"] = np.array([ref.yaw])
         return readings
 

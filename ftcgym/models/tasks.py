@@ -17,6 +17,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
+from functools import cached_property
 
 import numpy as np
 
@@ -45,6 +46,13 @@ class Reference:
     yaw: float             # rad
 
 
+def _fixed(north: float, east: float, altitude: float, yaw: float) -> Reference:
+    """A set-point at rest, its arrays read-only (a task hands out the same one at every step)."""
+    position, velocity = np.array([north, east, -altitude]), np.zeros(3)
+    position.flags.writeable = velocity.flags.writeable = False
+    return Reference(position, velocity, yaw)
+
+
 @dataclass(frozen=True)
 class HoverTask:
     """Hold `altitude` m above (north, east)."""
@@ -56,7 +64,11 @@ class HoverTask:
     yaw: float = 0.0
 
     def reference(self, t: float) -> Reference:
-        return Reference(np.array([self.north, self.east, -self.altitude]), np.zeros(3), self.yaw)
+        return self._set_point
+
+    @cached_property
+    def _set_point(self) -> Reference:
+        return _fixed(self.north, self.east, self.altitude, self.yaw)
 
     def extent(self) -> dict:
         """The farthest set-point from home (|north| or |east|), the highest altitude and the fastest speed."""
@@ -86,11 +98,14 @@ class GotoTask:
                              f"(altitude + step_altitude > 0), got {self.altitude:g} + {self.step_altitude:g}")
 
     def reference(self, t: float) -> Reference:
-        stepped = t > self.step_time
-        north = self.north + (self.step_north if stepped else 0.0)
-        east = self.east + (self.step_east if stepped else 0.0)
-        altitude = self.altitude + (self.step_altitude if stepped else 0.0)
-        return Reference(np.array([north, east, -altitude]), np.zeros(3), self.yaw)
+        return self._set_points[t > self.step_time]
+
+    @cached_property
+    def _set_points(self) -> tuple[Reference, Reference]:
+        """(before, after) the step."""
+        return (_fixed(self.north, self.east, self.altitude, self.yaw),
+                _fixed(self.north + self.step_north, self.east + self.step_east, self.altitude + self.step_altitude,
+                       self.yaw))
 
     def extent(self) -> dict:
         """As `HoverTask.extent`, over both set-points; a step's reference speed is 0."""
@@ -155,7 +170,11 @@ class MissionTask:
         return self.circuit_radius * np.array([-np.sin(heading), np.cos(heading)])
 
     def reference(self, t: float) -> Reference:
-        return Reference(np.array([0.0, 0.0, -self.altitude]), np.zeros(3), 0.0)
+        return self._home
+
+    @cached_property
+    def _home(self) -> Reference:
+        return _fixed(0.0, 0.0, self.altitude, 0.0)
 
     def extent(self) -> dict:
         """As `HoverTask.extent`: the circle through home spans two radii from it."""
