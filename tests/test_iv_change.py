@@ -27,7 +27,7 @@ def test_iv_cost_recursion_matches_the_batch_sum_of_eq_30():
     rng = np.random.default_rng(3)
     lam, n_w, n = 0.97, 50, 400
     Z, r = rng.normal(size=(n, 2, 3)), rng.normal(size=(n, 2))
-    cost = IvCost(lam, n_w, (2, 3))
+    cost = IvCost(lam, n_w)
     worst = 0.0
     for t in range(n):
         J = cost.update(Z[t], r[t])

@@ -71,7 +71,7 @@ import numpy as np
 from scipy import signal
 
 from ..models.constants import GRAVITY
-from ..models.geometry import cross, rotation_matrix, skew_matrix
+from ..models.geometry import cross3, rotation_matrix
 from ..models.pusher import pusher_thrust
 from ..models.quadplane_aero import fuselage_force, wing_flow
 from ..settings import updated
@@ -231,14 +231,11 @@ class ComponentForceModel:
         self.k_f = p.hover_thrust_coefficient * math.cos(p.hover_tilt)
         self.k_d = p.hover_drag_coefficient
 
-    def hover(self, u, v, omega_h):
-        """eq. (15) T_zh = K_zh omega_h^2 (summed over the rotors) and eq. (16)-(17) rotor drag F = K_h (u, v),
-        the slope K_h = -k_d sum|omega| growing with RPM (001 App. A, Fig. 17a)."""
-        return np.array(self._hover(u, v, omega_h))
-
-    def _hover(self, u, v, omega_h) -> tuple:
-        """`hover` as floats. The sums run left to right from -0.0, as np.sum does below 8 terms, so the
-        floats are np.sum's (pairwise from 8 terms: there np.sum itself)."""
+    def hover_terms(self, omega_h) -> tuple:
+        """(K_h, T_zh): eq. (16)-(17)'s rotor-drag slope K_h = -k_d sum|omega|, growing with RPM (001 App. A,
+        Fig. 17a), so that F = K_h (u, v), and eq. (15)'s thrust T_zh = K_zh omega_h^2 summed over the rotors (along
+        -z). The sums run left to right from -0.0, as np.sum does below 8 terms, so the floats are np.sum's
+        (pairwise from 8 terms: there np.sum itself)."""
         omega_h = np.asarray(omega_h, dtype=float).ravel()
         if omega_h.size < 8:
             total, squares = -0.0, -0.0
@@ -247,19 +244,24 @@ class ComponentForceModel:
                 squares += w * w
         else:
             total, squares = float(np.sum(np.abs(omega_h))), float(np.sum(omega_h * omega_h))
-        drag = -self.k_d * total
-        return drag * u, drag * v, -self.k_f * squares
+        return -self.k_d * total, -self.k_f * squares
 
     def specific_force(self, air_velocity_body, omega_p: float, omega_h, skew: float) -> np.ndarray:
-        """eq. (31)-(33): [a_x, a_y, a_z] = (F_f + F_w + F_h + T_p e_x) / m, m/s^2.
+        """eq. (31)-(33): [a_x, a_y, a_z] = (F_f + F_w + F_h + T_p e_x) / m, m/s^2."""
+        u, v, w = (float(x) for x in air_velocity_body)
+        return np.array(self.specific_force_floats(u, v, w, omega_p, self.hover_terms(omega_h), skew))
 
-        Summed per component in floats, in the order of the array sum (F_f + F_w) + F_h, then + T_p on x."""
-        vel = tuple(float(x) for x in air_velocity_body)
+    def specific_force_floats(self, u: float, v: float, w: float, omega_p: float, hover: tuple,
+                              skew: float) -> tuple:
+        """`specific_force` as floats, given the hover terms (`hover_terms`). Summed per component in the order
+        of the array sum it replaced, (F_f + F_w) + F_h, then + T_p on x."""
+        vel = (u, v, w)
         fuselage, wing = fuselage_force(self.params, vel), wing_flow(self.params, vel, skew)[0]
-        hover = self._hover(vel[0], vel[1], omega_h)
-        force = [float(fuselage[i]) + float(wing[i]) + hover[i] for i in range(3)]
-        force[0] += pusher_thrust(self.params, omega_p, vel[0])
-        return np.array(force) / self.mass
+        slope, thrust = hover
+        mass = self.mass
+        return ((fuselage[0] + wing[0] + slope * u + pusher_thrust(self.params, omega_p, u)) / mass,
+                (fuselage[1] + wing[1] + slope * v) / mass,
+                (fuselage[2] + wing[2] + thrust) / mass)
 
 
 _GRAVITY_NED = np.array([0.0, 0.0, GRAVITY])
@@ -275,17 +277,22 @@ def ekf_step(x, P, dt, inputs, z, h, H, Q, R):
     eq. (54)-(58) with the measurement function h(x-) and its Jacobian H(x-) (callables).
     """
     a, omega, Rot = inputs
-    vel = x[:3]
-    f = np.zeros(6)
-    f[:3] = -cross(omega, vel) + Rot.T.dot(_GRAVITY_NED) + a      # eq. (4); eq. (5): wind f = 0
-    F = np.zeros((6, 6))
-    F[:3, :3] = -skew_matrix(omega)
-    L = np.zeros((6, 9))
-    L[:3, :3] = kalman.eye(3)                   # accelerometer noise w_a
-    L[:3, 3:6] = skew_matrix(vel)             # gyro noise: -(w_omega x v) = v x w_omega
-    L[3:, 6:] = kalman.eye(3)                   # wind random walk w_mu
-    x_pred = x + f * dt                                            # eq. (52), corrected
-    P_pred = kalman.predict(P, L.dot(Q).dot(L.T), kalman.eye(6) + F * dt)   # eq. (53)
+    (p, q, r), (u, v, w) = omega.tolist(), x[:3].tolist()
+    # Built from floats with the elementwise operations of the array forms they replace (zeros included, so
+    # that even the signs of zeros are theirs).
+    c, g = cross3((p, q, r), (u, v, w)), Rot.T.dot(_GRAVITY_NED).tolist()
+    f = [-c[i] + g[i] + a[i] for i in range(3)] + [0.0, 0.0, 0.0]          # eq. (4); eq. (5): wind f = 0
+    x_pred = np.array([x_i + f_i * dt for x_i, f_i in zip(x.tolist(), f)])   # eq. (52), corrected
+    # Phi = I + F dt, F = [-[omega]x 0; 0 0]
+    Phi = np.array([[1.0, 0.0 + r * dt, 0.0 + -q * dt, 0.0, 0.0, 0.0],
+                    [0.0 + -r * dt, 1.0, 0.0 + p * dt, 0.0, 0.0, 0.0],
+                    [0.0 + q * dt, 0.0 + -p * dt, 1.0, 0.0, 0.0, 0.0],
+                    [0.0, 0.0, 0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 0.0, 0.0, 1.0]])
+    # L = [I [v]x 0; 0 0 I]: accelerometer noise w_a, gyro noise -(w_omega x v) = v x w_omega, wind random walk
+    L = np.array([[1.0, 0.0, 0.0, 0.0, -w, v, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, w, 0.0, -u, 0.0, 0.0, 0.0],
+                  [0.0, 0.0, 1.0, -v, u, 0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0],
+                  [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]])
+    P_pred = kalman.predict(P, L.dot(Q).dot(L.T), Phi)             # eq. (53)
     y = z - h(x_pred)                                              # eq. (54)
     x_new, P_new, S, _ = kalman.update(x_pred, P_pred, y, H(x_pred), R)   # eq. (55)-(58), M = I, Joseph form
     return x_new, P_new, y, S
@@ -389,9 +396,12 @@ class AirdataEkfDetector:
             raise ValueError(f"vertical_wind: {s.vertical_wind!r}; accepted: {list(VERTICAL_WIND)}")
         if s.vertical_wind == "fixed":                        # mu_z stays 0: no process noise, no initial variance
             self.Q[8, 8] = 0.0
+        self._Q_boosted = self.Q.copy()
+        self._Q_boosted[6:, 6:] *= s.wind_boost                # Sec. 5.4, see `_ekf_cycle`
         self.R = np.diag(np.asarray(s.R, dtype=float))
         self.wind_boost, self.wind_boost_seconds = float(s.wind_boost), float(s.wind_boost_seconds)
         self.takeoff, self.velocity_key = TakeoffGate(s.takeoff_height, s.takeoff_window, sample_hz), s.velocity_key
+        self._keys = ("accel", "gyro", "attitude", self.velocity_key, "pusher_speed", "hover_rotor_speed", "skew")
         self._ba = butterworth_prefilter(sample_hz, s.prefilter_hz)
         if s.pitot_reference not in ("airspeed", "forward"):
             raise ValueError(f"pitot_reference: {s.pitot_reference!r}; accepted: ['airspeed', 'forward']")
@@ -452,52 +462,56 @@ class AirdataEkfDetector:
         self.trace = []
 
     def update(self, readings: dict, time: float, command=None) -> None:
-        q = np.asarray(readings["attitude"], dtype=float)
-        if self._last_q is not None and q @ self._last_q < 0.0:   # keep the quaternion's sign continuous
-            q = -q
-        self._last_q = q
-        keys = ("accel", "gyro", "attitude", self.velocity_key, "pusher_speed", "hover_rotor_speed", "skew")
-        parts = [q if key == "attitude" else np.asarray(readings[key], dtype=float).reshape(-1) for key in keys]
-        if self._propulsion is not None:                       # s[19]: filtered like the RPM it stands in for
-            keys += ("pusher_current",)
-            parts.append(np.array([self._current_reading(readings, "the pusher_rpm speed_from_current")]))
-        sample = np.concatenate(parts)
-        if not math.isfinite(sum(sample.tolist())):            # one check; the key is looked for only on failure
-            for key, part in zip(keys, parts):
-                if not np.all(np.isfinite(part)):
-                    raise ValueError(f"airdata_ekf: reading {key!r} is not finite at t = {time}: {part.tolist()}")
+        current = self._pusher_current(readings)
+        sample = self._sample(readings, current, time)
         self._filtered = self._filter(sample)                  # Sec. 5: inputs and measurements alike
         if self.pitot_key in readings:
-            self._pitot = float(np.asarray(readings[self.pitot_key]).reshape(-1)[0])
-        self._update_current_checks(readings, float(parts[keys.index("pusher_speed")][0]))
-        airborne = self.takeoff(float(readings["position"][2]))
+            self._pitot = _first(readings[self.pitot_key])
+        # every sample, so their filters run before the EKF starts; they need the raw pusher speed and current
+        # (each check low-passes them itself, so it also runs alone on recorded readings)
+        for check in self.current_checks.values():
+            check.update(float(sample[13]), current)
         if not self.started:
-            if not airborne:                                   # Sec. 5.3: start once airborne
+            if not self.takeoff(float(readings["position"][2])):   # Sec. 5.3: start once airborne
                 return
             self.started, self.start_time, self._next_time = True, float(time), float(time)
         if time + 1e-9 >= self._next_time:
             self._next_time += self.dt
             self._ekf(time)
 
-    def _update_current_checks(self, readings: dict, pusher_speed: float) -> None:
-        """Every sample, so their filters run before the EKF starts; they need the raw pusher speed and current
-        (each check low-passes them itself, so it also runs alone on recorded readings)."""
-        if not self.current_checks:
-            return
-        current = self._current_reading(readings, f"the {next(iter(self.current_checks))} current_check")
-        for check in self.current_checks.values():
-            check.update(pusher_speed, current)
+    def _sample(self, readings: dict, current: float | None, time: float) -> np.ndarray:
+        """The readings of `_keys` as one array (the sample s of `_ekf_cycle`), the attitude's sign kept
+        continuous; s[19] is the pusher current where the EKF uses it, filtered like the RPM it stands in for."""
+        parts = [readings[key] for key in self._keys]
+        if self._propulsion is not None:
+            parts.append((current,))
+        sample = _flat(parts)
+        q = sample[6:10]
+        if self._last_q is not None and q.dot(self._last_q) < 0.0:   # keep the quaternion's sign continuous
+            q *= -1.0
+        self._last_q = q
+        if not math.isfinite(sum(sample.tolist())):            # one check; the key is looked for only on failure
+            keys = self._keys + (("pusher_current",) if self._propulsion is not None else ())
+            for key in keys:
+                part = np.asarray(readings[key], dtype=float).reshape(-1)
+                if not np.all(np.isfinite(part)):
+                    raise ValueError(f"airdata_ekf: reading {key!r} is not finite at t = {time}: {part.tolist()}")
+        return sample
 
-    @staticmethod
-    def _current_reading(readings: dict, user: str) -> float:
+    def _pusher_current(self, readings: dict) -> float | None:
+        """The pusher current reading, where the pusher RPM's speed_from_current or a current check needs it."""
+        if self._propulsion is None and not self.current_checks:
+            return None
         if "pusher_current" not in readings:
+            user = ("the pusher_rpm speed_from_current" if self._propulsion is not None
+                    else f"the {next(iter(self.current_checks))} current_check")
             raise ValueError(f"airdata_ekf: reading 'pusher_current' missing; {user} needs it (without it, drop "
                              f"that key from innovation_detectors)")
-        return float(np.asarray(readings["pusher_current"]).reshape(-1)[0])
+        return _first(readings["pusher_current"])
 
     def _ekf(self, time: float) -> None:
-        self._history.append((time, self._filtered.copy(), self.x.copy(), self.P.copy(),
-                              (self._speed_scale, self._speed_scale_samples)))
+        # no copies: the sample, x and P are replaced each step, never changed in place
+        self._history.append((time, self._filtered, self.x, self.P, (self._speed_scale, self._speed_scale_samples)))
         self._ekf_cycle(self._filtered, time)
         self._armed = time - self.start_time >= self.detection_delay - 1e-9
         residual = self._pitot_residual(time)
@@ -544,12 +558,12 @@ class AirdataEkfDetector:
 
     def _ekf_cycle(self, s: np.ndarray, time: float) -> None:
         """One EKF step on the filtered sample `s`, with the covariances of the sensors' current state."""
-        a, omega, Rot = s[0:3], s[3:6], rotation_matrix(s[6:10] / np.linalg.norm(s[6:10]))
+        q = s[6:10]
+        a, omega, Rot = s[0:3], s[3:6], rotation_matrix((q / math.sqrt(q.dot(q))).tolist())   # q / np.linalg.norm(q)
         v_gnd, omega_p, omega_h, skew = s[10:13], float(s[13]), s[14:18], float(s[18])
         model = self.model
-        Q = self.Q.copy()
-        if time - self.start_time < self.wind_boost_seconds:  # Sec. 5.4: faster wind convergence
-            Q[6:, 6:] *= self.wind_boost
+        # Sec. 5.4: faster wind convergence
+        Q = self._Q_boosted if time - self.start_time < self.wind_boost_seconds else self.Q
         R = self.R.copy()
         R[5, 5] *= az_covariance_gain(skew)                  # eq. (39), corrected
         for sensor, alarm_time in self.innovation_alarms.items():
@@ -560,19 +574,24 @@ class AirdataEkfDetector:
             omega_p, variance = self._pusher_speed(omega_p, float(s[19]), skew)
             if variance is not None:
                 R[3, 3] = variance                           # a_x back in use, on the current's speed
+        hover = model.hover_terms(omega_h)
+
+        def force(u, v, w):
+            return model.specific_force_floats(u, v, w, omega_p, hover, skew)
 
         def h(x):                                            # eq. (3) and (31)-(33)
-            return np.concatenate([Rot.dot(x[:3]) + x[3:], model.specific_force(x[:3], omega_p, omega_h, skew)])
+            return np.concatenate([Rot.dot(x[:3]) + x[3:], force(*x[:3].tolist())])
 
         def H(x):                                   # eq. (50): analytic for GNSS, central differences for the model
-            G = np.zeros((6, 6))
-            G[:3, :3], G[:3, 3:] = Rot, kalman.eye(3)
-            for j in range(3):
-                step = np.zeros(3)
-                step[j] = 1e-4
-                G[3:, j] = (model.specific_force(x[:3] + step, omega_p, omega_h, skew)
-                            - model.specific_force(x[:3] - step, omega_p, omega_h, skew)) / 2e-4
-            return G
+            u, v, w = x[:3].tolist()
+            # x[:3] +- 1e-4 e_j with the array sums' zeros: + 0.0 (which turns -0.0 into 0.0) and - 0.0
+            columns = [[(p - m) / 2e-4 for p, m in zip(force(*plus), force(*minus))] for plus, minus in (
+                ((u + 1e-4, v + 0.0, w + 0.0), (u - 1e-4, v, w)), ((u + 0.0, v + 1e-4, w + 0.0), (u, v - 1e-4, w)),
+                ((u + 0.0, v + 0.0, w + 1e-4), (u, v, w - 1e-4)))]
+            (r0, r1, r2), (c0, c1, c2) = Rot.tolist(), columns
+            return np.array([r0 + [1.0, 0.0, 0.0], r1 + [0.0, 1.0, 0.0], r2 + [0.0, 0.0, 1.0],
+                             [c0[0], c1[0], c2[0], 0.0, 0.0, 0.0], [c0[1], c1[1], c2[1], 0.0, 0.0, 0.0],
+                             [c0[2], c1[2], c2[2], 0.0, 0.0, 0.0]])
 
         z = np.concatenate([v_gnd, a])
         self.x, self.P, self.innovation, _ = ekf_step(self.x, self.P, self.dt, (a, omega, Rot), z, h, H, Q, R)
@@ -602,9 +621,9 @@ class AirdataEkfDetector:
         """Sec. 6.2: each innovation channel through its Table 2 criteria, and a sensor's `PitotConfirmation`
         where it has one; the first alarm of a sensor's criteria latches it (its rows then get
         `fault_covariance`, see `_ekf_cycle`). True on a new alarm."""
-        new = False
+        new, innovation = False, self.innovation.tolist()
         for sensor, channels in self.innovation_detectors.items():
-            hits = [d.criterion for c, d in channels.items() if d.update(self.innovation[c], time, self._armed)]
+            hits = [d.criterion for c, d in channels.items() if d.update(innovation[c], time, self._armed)]
             confirmation = self.confirmations.get(sensor)
             if confirmation is not None and pitot_residual is not None:
                 level = max(d.norm.level(d.residual) for d in channels.values())   # one-sided as the norm row
@@ -648,14 +667,16 @@ class AirdataEkfDetector:
 
     def first_alarm(self) -> tuple[float | None, str | None]:
         """(time, isolated sensor) of the first alarm: the pitot test or an innovation detector."""
+        pitot_alarm_time = self.pitot_alarm_time()
         events = [(t, sensor) for sensor, t in self.innovation_alarms.items() if t is not None]
-        if self.pitot_alarm_time() is not None:
-            events.append((self.pitot_alarm_time(), "pitot"))
+        if pitot_alarm_time is not None:
+            events.append((pitot_alarm_time, "pitot"))
         return min(events) if events else (None, None)
 
     @property
     def airspeed(self) -> float:
-        return float(np.linalg.norm(self.x[:3]))
+        v = self.x[:3]
+        return math.sqrt(v.dot(v))                           # np.linalg.norm(v)
 
     @property
     def forward_airspeed(self) -> float:
@@ -663,15 +684,18 @@ class AirdataEkfDetector:
         return max(float(self.x[0]), 0.0)
 
     def outputs(self) -> dict:
-        return {"airspeed": np.array([min(self.airspeed, 200.0)]), "wind": np.clip(self.x[3:], -100.0, 100.0),
-                "pitot_residual": np.clip([self.pitot_detector.residual], -200.0, 200.0)}
+        # np.clip's floats (NaN kept) by min and max, cheaper on three values
+        return {"airspeed": np.array([min(self.airspeed, 200.0)]),
+                "wind": np.array([min(max(w, -100.0), 100.0) for w in self.x[3:].tolist()]),
+                "pitot_residual": np.array([min(max(self.pitot_detector.residual, -200.0), 200.0)])}
 
     def status(self) -> dict:
         d = self.pitot_detector
+        pitot_alarm_time = self.pitot_alarm_time()
         alarm_time, isolated = self.first_alarm()
         return {"alarm": alarm_time is not None, "alarm_time": alarm_time, "isolated": isolated,
-                "criterion": self.criterion, "pitot_alarm": self.pitot_alarm_time() is not None,
-                "pitot_alarm_time": self.pitot_alarm_time(), "alarm_time_table2": d.alarm_time,
+                "criterion": self.criterion, "pitot_alarm": pitot_alarm_time is not None,
+                "pitot_alarm_time": pitot_alarm_time, "alarm_time_table2": d.alarm_time,
                 "alarm_time_cusum": self.cusum.alarm_time, "alarm_time_ramp": self.ramp.alarm_time,
                 "table2_criterion": d.criterion, "cusum_statistic": float(self.cusum.statistic),
                 "ramp_statistic": float(self.ramp.statistic), "innovation_alarms": dict(self.innovation_alarms),
@@ -682,6 +706,22 @@ class AirdataEkfDetector:
                 "detection_armed": self._armed, "started": self.started,
                 "start_time": self.start_time, "airspeed": self.airspeed, "wind": self.x[3:].tolist(),
                 "air_velocity_body": self.x[:3].tolist(), "innovation": self.innovation.tolist()}
+
+
+def _first(reading) -> float:
+    """The first value of a reading (the env's are 1-element arrays), as a float."""
+    return float(reading[0] if type(reading) is np.ndarray and reading.ndim == 1 else np.ravel(reading)[0])
+
+
+def _flat(parts: list) -> np.ndarray:
+    """The readings `parts` as one flat float64 array (the env's 1-D arrays in one concatenation)."""
+    try:
+        flat = np.concatenate(parts, dtype=np.float64)
+        if flat.ndim == 1:
+            return flat
+    except ValueError:                                         # a scalar reading (a recorded log's row)
+        pass
+    return np.concatenate([np.asarray(part, dtype=np.float64).reshape(-1) for part in parts])
 
 
 def airdata_ekf_wrapper(env, params="vehicle", **kwargs):

@@ -122,7 +122,8 @@ class LowPassBank:
             B = np.concatenate([B, Bs * D])
             C = np.concatenate([b0 * C, Cs])
             D = b0 * D
-        self.A, self.B, self.C, self.D = A, B, C, D
+        # y = C x + D u and x <- A x + B u as one product: [y; x] <- [C; A] x + [D; B] u
+        self._CA, self._DB = np.vstack([C, A]), np.concatenate([[D], B])
         self._steady = np.linalg.solve(np.eye(len(B)) - A, B)   # state for a unit constant input
         self.x = None
 
@@ -131,10 +132,12 @@ class LowPassBank:
         self.x = np.outer(self._steady, u)
 
     def step(self, u: np.ndarray) -> np.ndarray:
-        # ndarray.dot and ufunc.outer: the BLAS calls and products of `@` and np.outer, less their per-call cost
-        y = self.C.dot(self.x) + self.D * u
-        self.x = self.A.dot(self.x) + np.multiply.outer(self.B, u)
-        return y
+        # ndarray.dot and ufunc.outer: the BLAS call and products of `@` and np.outer, less their per-call cost. The
+        # stacked product's rows are the floats of C.dot(x) and A.dot(x) (0 differences in 2.4e5 random samples).
+        yx = self._CA.dot(self.x)
+        yx += np.multiply.outer(self._DB, u)
+        self.x = yx[1:]
+        return yx[0]
 
 
 class ReferenceModel:
@@ -181,30 +184,36 @@ class ReferenceModel:
 
 
 class IvCost:
-    """004 eq. (30) for several models at once: S(t) = sum_{i=t-N_w+1}^{t} lam^(t-i) Z(i) r(i), J = ||S||_2.
+    """004 eq. (30) for the two axes' models at once: S(t) = sum_{i=t-N_w+1}^{t} lam^(t-i) Z(i) r(i), J = ||S||_2.
 
     Recursive: S(t) = lam S(t-1) + Z(t) r(t) - lam^N_w Z(t-N_w) r(t-N_w), the last N_w products kept in
-    a ring buffer, so a sample costs the same whatever the window.
+    a ring buffer, so a sample costs the same whatever the window. Plain floats: Z is 2 x 3 (three instruments
+    per axis), and numpy's per-call cost would outweigh six products.
     """
 
-    def __init__(self, lam: float, n_w: int, shape: tuple):
-        self.lam, self.n_w, self.shape = float(lam), int(n_w), tuple(shape)
+    def __init__(self, lam: float, n_w: int):
+        self.lam, self.n_w = float(lam), int(n_w)
         self._lam_n = self.lam ** self.n_w
         self.reset()
 
     def reset(self) -> None:
-        self._products = np.zeros((self.n_w, *self.shape))
+        self._products = [(0.0,) * 6] * self.n_w
         self._k = 0
-        self.S = np.zeros(self.shape)
+        self.S = (0.0,) * 6          # S row by row: axis x's three instruments, then axis y's
 
-    def update(self, Z: np.ndarray, r: np.ndarray) -> np.ndarray:
-        """Add Z(t) (models x dim) times r(t) (models,); return J(t) (models,)."""
-        zr = Z * r[:, None]
+    def update(self, Z, r) -> tuple:
+        """Add Z(t) (2 x 3) times r(t) (2,); return J(t) (2,)."""
+        (z0, z1, z2), (z3, z4, z5) = Z
+        r_x, r_y = r
+        zr = (z0 * r_x, z1 * r_x, z2 * r_x, z3 * r_y, z4 * r_y, z5 * r_y)
         slot = self._k % self.n_w
-        self.S = self.lam * self.S + zr - self._lam_n * self._products[slot]
+        lam, lam_n = self.lam, self._lam_n
+        self.S = S = tuple(lam * s + p - lam_n * q for s, p, q in zip(self.S, zr, self._products[slot]))
         self._products[slot] = zr
         self._k += 1
-        return np.sqrt(np.einsum("ij,ij->i", self.S, self.S))
+        # ||S_row||^2 summed as the einsum this replaced did, (s_0^2 + s_2^2) + s_1^2: the same floats
+        return (math.sqrt(S[0] * S[0] + S[2] * S[2] + S[1] * S[1]),
+                math.sqrt(S[3] * S[3] + S[5] * S[5] + S[4] * S[4]))
 
 
 class IvEstimate:
@@ -227,9 +236,10 @@ class IvEstimate:
     def reset(self) -> None:
         self.N = self.D = self.D_peak = 0.0
 
-    def update(self, zeta: np.ndarray, y: np.ndarray, phi: np.ndarray) -> None:
-        self.N = self.lam * self.N + float(zeta @ y)
-        self.D = self.lam * self.D + float(zeta @ phi)
+    def update(self, zeta, y, phi) -> None:
+        """One grid sample; zeta, y, phi are (x, y)-axis pairs."""
+        self.N = self.lam * self.N + (zeta[0] * y[0] + zeta[1] * y[1])
+        self.D = self.lam * self.D + (zeta[0] * phi[0] + zeta[1] * phi[1])
         self.D_peak = max(self.D_peak, self.D)
 
 
@@ -252,23 +262,31 @@ class AccelBiasEstimate:
 
     def reset(self) -> None:
         # The ridge toward theta_0 = (c, 0, 0) sits in the sums from the start: it adds prior on b's diagonal
-        # and nothing to B (its c entry is 0).
-        self.A, self.B = np.diag((0.0, self.prior, self.prior)), np.zeros(3)
-        self.bias = np.zeros(2)
+        # and nothing to B (its c entry is 0). A's entries (1, 2) and (2, 1) stay 0, its (1, 1) and (2, 2) are
+        # the same sum (`_bb`).
+        self._a00 = self._a01 = self._a02 = self._a10 = self._a20 = 0.0
+        self._bb = self.prior
+        self.B = (0.0, 0.0, 0.0)
+        self.bias = (0.0, 0.0)
 
     def update(self, zeta, phi, y, dr: float, dr_hat: float) -> None:
         # instruments (zeta_x, 0, -dr_hat), (zeta_y, dr_hat, 0) times regressors (phi_x, 0, -dr), (phi_y, dr, 0)
-        A, B = self.A, self.B
-        A[0] += (zeta[0] * phi[0] + zeta[1] * phi[1], zeta[1] * dr, -zeta[0] * dr)
-        A[1] += (dr_hat * phi[1], dr_hat * dr, 0.0)
-        A[2] += (-dr_hat * phi[0], 0.0, dr_hat * dr)
-        B += (zeta[0] * y[0] + zeta[1] * y[1], dr_hat * y[1], -dr_hat * y[0])
-        if A[0, 0] > 0.0:
-            self.bias = np.linalg.solve(A, B)[1:]
+        self._a00 += zeta[0] * phi[0] + zeta[1] * phi[1]
+        self._a01 += zeta[1] * dr
+        self._a02 += -zeta[0] * dr
+        self._a10 += dr_hat * phi[1]
+        self._a20 += -dr_hat * phi[0]
+        self._bb += dr_hat * dr
+        B0, B1, B2 = self.B
+        self.B = (B0 + (zeta[0] * y[0] + zeta[1] * y[1]), B1 + dr_hat * y[1], B2 + -dr_hat * y[0])
+        if self._a00 > 0.0:
+            bb = self._bb
+            A = np.array(((self._a00, self._a01, self._a02), (self._a10, bb, 0.0), (self._a20, 0.0, bb)))
+            self.bias = tuple(np.linalg.solve(A, np.array(self.B))[1:].tolist())
 
-    def correction(self, dr: float) -> np.ndarray:
+    def correction(self, dr: float) -> tuple:
         """What the bias leaves in y (x, y axes), to subtract: (-b_y T Delta r, b_x T Delta r)."""
-        return np.array((-self.bias[1] * dr, self.bias[0] * dr))
+        return -self.bias[1] * dr, self.bias[0] * dr
 
 
 class WindDragTest:
@@ -520,10 +538,11 @@ class IvChangeDetector:
                            if s.yaw_coupling and s.accel_bias_prior is not None else None)
         self._filter = (s.cutoff_hz, s.filter_order, self.dt, s.weight_hz)
         self.reference_model = ReferenceModel(c, self.dt, s.kp, s.kd, s.k_att, s.k_yaw)
-        self.cost = IvCost(s.lam, s.n_w, (2, 3))
+        self.cost = IvCost(s.lam, s.n_w)
         self.estimate = IvEstimate(s.lam_estimate)
         self.test, self.wind_threshold = s.test, float(s.wind_threshold)
         self.wind_test = WindDragTest(mass, lambda_1, rotor_drag, s, self.dt) if s.test == "wind" else None
+        self._keys = READ_KEYS + (WIND_TEST_KEYS if self.wind_test is not None else ())
         self.latch = AlarmLatch()
         self.reset()
 
@@ -548,8 +567,8 @@ class IvChangeDetector:
         self._k = 0                  # grid samples taken
         self._gate_until = -math.inf
         self._below_since = None     # grid time c_hat / c_0 went under ratio_threshold
-        self.J = np.zeros(2)
-        self.residual = np.zeros(2)
+        self.J = (0.0, 0.0)
+        self.residual = (0.0, 0.0)
         self.c_hat = self.c          # the nominal value until the instruments have excited the model
         self.cusum = 0.0             # CUSUM g (s) of the IV increments toward c = cusum_ratio c_0
         self._z2_sum, self._z2_n = 0.0, 0   # instrument power over the warm-up (the CUSUM's unit)
@@ -559,7 +578,7 @@ class IvChangeDetector:
             self.wind_test.reset()
 
     def update(self, readings: dict, time: float, command=None) -> None:
-        gyro, accel, position, velocity, yaw = (_finite(readings, key) for key in READ_KEYS)
+        gyro, accel, position, velocity, yaw, *wind_readings = _finite(readings, self._keys)
         p, q, r = gyro
         a_x, a_y = accel[0], accel[1]
         if self._last is None:
@@ -579,28 +598,26 @@ class IvChangeDetector:
         if self._last is None:
             self._t0 = time
             self.lowpass.start(u)
-        if self.wind_test is not None:
-            attitude, ground_velocity, rotor_speed = (_finite(readings, key) for key in WIND_TEST_KEYS)
-            if (self.wind_test.update(accel, attitude, ground_velocity, rotor_speed, time)
-                    and time - self._t0 >= self.warmup - 1e-9):
-                self.wind_cusum = max(0.0, self.wind_cusum + self.wind_test.llr)
-                if self.wind_cusum > self.wind_threshold:
-                    self.latch.trigger(time)
+        if (self.wind_test is not None and self.wind_test.update(accel, *wind_readings, time)
+                and time - self._t0 >= self.warmup - 1e-9):
+            self.wind_cusum = max(0.0, self.wind_cusum + self.wind_test.llr)
+            if self.wind_cusum > self.wind_threshold:
+                self.latch.trigger(time)
         f = self.lowpass.step(u)
         t_last, f_last = self._last or (time, f)
         # Resample onto the model's grid t0 + k T by linear interpolation (the signals are slow by now).
         while (t_k := self._t0 + self._k * self.T) <= time + 1e-9:
             w = (t_k - t_last) / (time - t_last) if time > t_last else 1.0
-            self._grid_step(f_last + w * (f - f_last), t_k)
+            self._grid_step((f_last + w * (f - f_last)).tolist(), t_k)
         self._last = (time, f)
 
     def outputs(self) -> dict:
-        return {"J": self.J.copy(), "residual": self.residual.copy(), "c_hat": np.array([self.c_hat]),
+        return {"J": np.array(self.J), "residual": np.array(self.residual), "c_hat": np.array([self.c_hat]),
                 "cusum": np.array([self.cusum]), "wind_cusum": np.array([self.wind_cusum])}
 
     def status(self) -> dict:
-        bias = [0.0, 0.0] if self.accel_bias is None else self.accel_bias.bias.tolist()
-        return {**self.latch.status(), "J": self.J.tolist(), "c_hat": self.c_hat, "c_nominal": self.c,
+        bias = [0.0, 0.0] if self.accel_bias is None else list(self.accel_bias.bias)
+        return {**self.latch.status(), "J": list(self.J), "c_hat": self.c_hat, "c_nominal": self.c,
                 "accel_bias": bias,
                 "c_ratio": self.c_hat / self.c, "cusum": self.cusum, "cusum_threshold": self.cusum_threshold,
                 "wind_cusum": self.wind_cusum, "wind_threshold": self.wind_threshold,
@@ -608,42 +625,47 @@ class IvChangeDetector:
                 "ratio_threshold": self.ratio_threshold, "threshold": self.threshold}
 
     # ------------------------------------------------------------------------------------- model
-    def _grid_step(self, s: np.ndarray, t_k: float) -> None:
+    def _grid_step(self, s: list, t_k: float) -> None:
+        """One sample of the 200 Hz grid, `s` the filtered channels (floats: pairs of scalars cost less than
+        numpy's per-call overhead)."""
         self._k += 1
         self._grid = self._grid[-2:] + [s]
         if len(self._grid) < 3:
             return
         s2, s1, s0 = self._grid
-        T, g = self.T, GRAVITY
+        T, gT = self.T, GRAVITY * self.T
         # 004 eq. (29) rewritten linear in c: a(t) - 2 a(t-1) + a(t-2) = c phi_c(t) + r(t), with
         # phi_c = T [g T q(t-2) - (a_x(t-1) - a_x(t-2))] on x and T [-g T p(t-2) - (a_y(t-1) - a_y(t-2))] on y.
-        y = np.array((s0[0] - 2.0 * s1[0] + s2[0], s0[1] - 2.0 * s1[1] + s2[1]))
+        y_x, y_y = s0[0] - 2.0 * s1[0] + s2[0], s0[1] - 2.0 * s1[1] + s2[1]
         if self.yaw_coupling:
             # (28) drops the r v term of u' (and -r u of v'). With v = -a_y / c it adds r a_y to a_x'
             # (and -r a_x to a_y'), a known term moved to the output side: y(t) -= T [rho(t-1) - rho(t-2)].
-            y -= T * np.array((s1[4] - s2[4], -(s1[5] - s2[5])))
-        phi = T * np.array((g * T * s2[3] - (s1[0] - s2[0]), -g * T * s2[2] - (s1[1] - s2[1])))
+            y_x -= T * (s1[4] - s2[4])
+            y_y -= T * -(s1[5] - s2[5])
+        phi = (T * (gT * s2[3] - (s1[0] - s2[0])), T * (-gT * s2[2] - (s1[1] - s2[1])))
         # Instruments: the same regressors from the reference model's signals (004 Sec. 4.2).
-        zeta = T * np.array((g * T * s2[9] - (s1[6] - s2[6]), -g * T * s2[8] - (s1[7] - s2[7])))
+        zeta = (T * (gT * s2[9] - (s1[6] - s2[6])), T * (-gT * s2[8] - (s1[7] - s2[7])))
         if self.accel_bias is not None:    # take out the accelerometer bias the yaw coupling carries
             dr = T * (s1[10] - s2[10])
             if t_k >= self._gate_until:
-                self.accel_bias.update(zeta, phi, y, dr, T * (s1[11] - s2[11]))
-            y = y - self.accel_bias.correction(dr)
+                self.accel_bias.update(zeta, phi, (y_x, y_y), dr, T * (s1[11] - s2[11]))
+            bias_x, bias_y = self.accel_bias.correction(dr)
+            y_x, y_y = y_x - bias_x, y_y - bias_y
+        y = (y_x, y_y)
         # r1, r2 at the nominal c: identical to (29) with theta = [-2 + cT, 1 - cT, c g T^2].
-        self.residual = y - self.c * phi
+        self.residual = r_x, r_y = y_x - self.c * phi[0], y_y - self.c * phi[1]
         # The paper's instrument vectors Z (30): [-a_hat(t-1), -a_hat(t-2), +-q_hat/p_hat(t-2)].
-        Z = np.array(((-s1[6], -s2[6], s2[9]), (-s1[7], -s2[7], -s2[8])))
+        Z = ((-s1[6], -s2[6], s2[9]), (-s1[7], -s2[7], -s2[8]))
         kept = 0.0 if t_k < self._gate_until else 1.0
-        self.J = self.cost.update(Z, kept * self.residual)
-        self.estimate.update(kept * zeta, y, phi)
+        self.J = self.cost.update(Z, (kept * r_x, kept * r_y))
+        kz = (kept * zeta[0], kept * zeta[1])
+        self.estimate.update(kz, y, phi)
         est = self.estimate
         excited = est.D > 0.0 and self.min_excitation * est.D_peak <= est.D
         if excited:
             self.c_hat = est.N / est.D
-        kz = kept * zeta
         if t_k - self._t0 < self.warmup:
-            self._z2_sum += float(kz @ kz)
+            self._z2_sum += kz[0] * kz[0] + kz[1] * kz[1]
             self._z2_n += 1
             return
         if self._scale is None:
@@ -651,7 +673,8 @@ class IvChangeDetector:
         # CUSUM (Page 1954) on the IV increments, one-sided toward a lighter c (heavier vehicle):
         # e = T (c_1 zeta.phi - zeta.y) / (c_0 P_z), c_1 = cusum_ratio c_0, P_z the instruments' mean
         # power zeta.zeta over the warm-up; g = max(0, g + e); alarm when g > cusum_threshold (s).
-        e = T * (self.cusum_ratio * float(kz @ phi) - float(kz @ y) / self.c) / self._scale
+        e = T * (self.cusum_ratio * (kz[0] * phi[0] + kz[1] * phi[1]) - (kz[0] * y_x + kz[1] * y_y) / self.c) \
+            / self._scale
         self.cusum = max(0.0, self.cusum + e)
         if self.test == "iv" and self.cusum > self.cusum_threshold:
             self.latch.trigger(t_k)
@@ -662,7 +685,7 @@ class IvChangeDetector:
                 self.latch.trigger(t_k)
         else:
             self._below_since = None
-        if self.threshold is not None and (self.threshold < self.J).any():
+        if self.threshold is not None and max(self.J) > self.threshold:
             self.latch.trigger(t_k)
 
 
@@ -693,12 +716,13 @@ class SixDofResidual:
 
     def update(self, readings: dict) -> np.ndarray:
         """One step; returns [p - p_s, q - q_s, a_x - a_x_s, a_y - a_y_s]."""
-        gyro, accel, omega = (np.array(_finite(readings, key)) for key in ("gyro", "accel", "rotor_speed"))
-        phi, theta, _ = euler_from_quat(_finite(readings, "attitude"))
+        gyro, accel, omega = (np.array(v) for v in _finite(readings, ("gyro", "accel", "rotor_speed")))
+        attitude, velocity = _finite(readings, ("attitude", "velocity"))
+        phi, theta, _ = euler_from_quat(attitude)
         if self.omega_s is None:   # start from the measured state
             self.omega_s = gyro.copy()
-            R = rotation_matrix(_finite(readings, "attitude"))
-            self.V_s = (R.T @ _finite(readings, "velocity"))[:2]
+            R = rotation_matrix(attitude)
+            self.V_s = (R.T @ velocity)[:2]
         k1, g = self.lambda_1 / self.m, GRAVITY
         (p, q, _), (u, v) = self.omega_s, self.V_s
         residual = np.array((gyro[0] - p, gyro[1] - q, accel[0] + k1 * u, accel[1] + k1 * v))
@@ -715,9 +739,22 @@ def iv_change_wrapper(env, **kwargs) -> DetectorWrapper:
 
 
 # ----------------------------------------------------------------------------------------- helpers
-def _finite(readings: dict, key: str) -> list:
-    """readings[key] as a list of floats; a NaN or infinite reading raises ValueError naming the key."""
-    values = np.asarray(readings[key], dtype=np.float64).ravel().tolist()
-    if not math.isfinite(sum(values)):   # any NaN or inf makes the sum non-finite
-        raise ValueError(f"iv_change: reading {key!r} is not finite: {values}")
+def _finite(readings: dict, keys: tuple) -> list:
+    """[readings[key] as a list of floats for each key]; a NaN or infinite reading raises ValueError naming its
+    key. One check over all keys (a sum is finite only if every term is); the key is looked for only on failure."""
+    values = [_floats(readings[key]) for key in keys]
+    if not math.isfinite(sum(map(sum, values))):
+        for key, value in zip(keys, values):
+            if not all(map(math.isfinite, value)):   # else only the sum overflowed
+                raise ValueError(f"iv_change: reading {key!r} is not finite: {value}")
     return values
+
+
+_FLOAT64 = np.dtype(np.float64)
+
+
+def _floats(value) -> list:
+    """A reading as a flat list of floats (a 1-D float64 array, the env's, without the conversion's cost)."""
+    if type(value) is np.ndarray and value.ndim == 1 and value.dtype == _FLOAT64:
+        return value.tolist()
+    return np.asarray(value, dtype=np.float64).ravel().tolist()

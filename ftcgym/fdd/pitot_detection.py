@@ -272,10 +272,16 @@ class RampGlr:
         n = after + self._reference
         sum_x = after * (after - 1) / 2 / self.sample_hz               # x = 0, 1/f, ..., (m - 1)/f after onset
         sum_xx = (after - 1) * after * (2 * after - 1) / 6 / self.sample_hz**2
-        self._after, self._n, self._sum_x = after.astype(int), n, sum_x
+        self._n, self._sum_x = n, sum_x
         self._s_xx = sum_xx - sum_x**2 / n
+        self._sqrt_s_xx = np.sqrt(self._s_xx)
+        # samples newest first: candidate j's m = after[j] newest end at index m - 1, its window at m + reference - 1
+        self._m_minus_1 = after - 1
+        self._onset_end = self._m_minus_1.astype(int)
+        self._window_end = self._onset_end + self._reference
         self._size, self._index = size, np.arange(size, dtype=float)     # samples before the newest
-        self._ring = np.zeros(2 * size)         # each sample stored twice, so the last `size` are one slice
+        # each sample stored twice, newest at the lowest slot, so the last `size` are one slice, newest first
+        self._ring = np.zeros(2 * size)
         self.reset()
 
     def reset(self) -> None:
@@ -284,7 +290,7 @@ class RampGlr:
         self.alarm, self.alarm_time = False, None
 
     def update(self, residual: float, time: float, armed: bool = True) -> bool:
-        slot = self._count % self._size
+        slot = (-1 - self._count) % self._size
         self._ring[slot] = self._ring[slot + self._size] = residual
         self._count += 1
         if not armed:                           # the window refills with armed samples only
@@ -299,11 +305,13 @@ class RampGlr:
         return self.alarm
 
     def _z(self, newest: int) -> float:
-        r = self._ring[newest + self._size:newest:-1]                   # newest first
-        sum_r, sum_ir = np.cumsum(r), np.cumsum(self._index * r)
-        m, n = self._after, self._n
+        r = self._ring[newest:newest + self._size]                      # newest first
+        # running sums (np.cumsum's, less its wrapper's cost)
+        sum_r, sum_ir = np.add.accumulate(r), np.add.accumulate(self._index * r)
+        onset = self._onset_end
         # sum over the m newest samples of x_i r_i, x_i = (m - 1 - index_i) / f
-        sum_xr = ((m - 1) * sum_r[m - 1] - sum_ir[m - 1]) / self.sample_hz
-        s_xr = sum_xr - self._sum_x * sum_r[m + self._reference - 1] / n
+        sum_xr = (self._m_minus_1 * sum_r[onset] - sum_ir[onset]) / self.sample_hz
+        s_xr = sum_xr - self._sum_x * sum_r[self._window_end] / self._n
         slope = s_xr / self._s_xx
-        return float(np.max(-slope * np.sqrt(self._s_xx)) / self.sigma)
+        # max over onsets of -slope sqrt(S_xx) / sigma, as -min(slope sqrt(S_xx)) / sigma: the same floats
+        return float(-np.minimum.reduce(slope * self._sqrt_s_xx) / self.sigma)

@@ -30,7 +30,6 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-import numpy as np
 from scipy import signal
 
 from ..models.pusher import TWO_PI
@@ -43,7 +42,7 @@ def speed_from_current(model: PropulsionModel, current: float, airspeed: float) 
     """The pusher speed (rad/s) that draws `current` (A) at `airspeed` (m/s) in steady state: 003 eq. (1) with
     dw/dt = 0, k_e (I_e - I_0) = c_v w + Q_a(w, V), and eq. (2)-(4) expanded in n = w / 2 pi, a quadratic
     a w^2 + b w + c = 0 in w (its positive root; 0 when the current cannot turn the propeller)."""
-    _, c_v, i_0 = model.x_star
+    _, c_v, i_0 = model.x_star.tolist()
     rho, d, (cq0, cq1, cq2) = model.rho, model.D, model.cq
     V = max(float(airspeed), 0.0)
     a = rho * d ** 5 * cq0 / (TWO_PI * TWO_PI)
@@ -79,29 +78,32 @@ class RpmCurrentCheck:
         self.model = PropulsionModel(params, coefficient_error, error_seed)
         self.sample_hz, self.allowance = float(sample_hz), float(allowance)
         self.criterion = ThresholdCriterion(threshold, hold, sample_hz, sign=1)
-        self._filter = Biquad(*signal.butter(2, cutoff, btype="low", fs=sample_hz))
+        _, self._c_v, self._i_0 = self.model.x_star.tolist()
+        # one scalar filter per signal: the floats of the two-channel filter, without numpy's per-call cost
+        ba = signal.butter(2, cutoff, btype="low", fs=sample_hz)
+        self._speed_filter, self._current_filter = Biquad(*ba), Biquad(*ba)
         self.reset()
 
     def reset(self) -> None:
         self.criterion.reset()
-        self._filter.reset()
+        self._speed_filter.reset()
+        self._current_filter.reset()
         self._last_speed = None
         self.excess, self.holding = 0.0, False
 
     def update(self, speed: float, current: float) -> bool:
         if not (math.isfinite(speed) and math.isfinite(current)):
             raise ValueError(f"rpm current check: pusher_speed {speed!r} and pusher_current {current!r} must be finite")
-        w, current = self._filter(np.array([speed, current]))
+        w, current = self._speed_filter(float(speed)), self._current_filter(float(current))
         w_dot = 0.0 if self._last_speed is None else (w - self._last_speed) * self.sample_hz
         self._last_speed = w
-        self.excess = float(current - self._bound(max(w, 0.0), w_dot))
+        self.excess = current - self._bound(max(w, 0.0), w_dot)
         self.holding = self.criterion(self.excess)
         return self.holding
 
     def _bound(self, w: float, w_dot: float) -> float:
         """I_max(w) (003 eq. 1 at V = 0, theta_1 = 1) widened by the allowance."""
-        m = self.model
-        _, c_v, i_0 = m.x_star
+        m, c_v, i_0 = self.model, self._c_v, self._i_0
         steady = c_v * w + float(m.nominal_torque(w, 0.0))
         inertia = m.Theta * w_dot
         return i_0 + (steady + inertia) / m.k_e + self.allowance * (i_0 + (steady + abs(inertia)) / m.k_e)
