@@ -1,9 +1,10 @@
 """The lean physics step: seeded trajectories pinned to the values of the numpy-array step it replaced,
-and `info_level`."""
+`info_level` and `observation_format`."""
 import gymnasium as gym
 import numpy as np
 import pytest
 from conftest import LIGHT_WIND
+from gymnasium.spaces import flatten, unflatten
 
 from ftcgym.agents import make_policy
 
@@ -59,4 +60,31 @@ def test_minimal_info_omits_only_truth_and_leaves_the_flight_unchanged(env_id):
 
 def test_info_level_is_validated():
     with pytest.raises(ValueError, match="info_level"):
-        gym.make("ftcgym/Quadrotor-v0", info_level="none")
+        gym.make("ftcgym/Quadrotor-v0", info_level="verbose")
+
+
+@pytest.mark.parametrize("env_id", ["ftcgym/Quadrotor-v0", "ftcgym/QuadPlane-v0"])
+def test_flat_observations_are_gymnasiums_flattening_of_the_dict_and_fly_the_same(env_id):
+    """`observation_format="flat"` gives `gymnasium.spaces.flatten` of the Dict observation, in a Box that
+    contains it; with `info_level="none"` info is empty; the flight is the same."""
+    kwargs = {"wind": LIGHT_WIND, "faults": [{"kind": "sensor_bias", "target": "gyro", "time": 0.01,
+                                              "magnitude": [0.1, 0.0, 0.0]}]}
+    reference = gym.make(env_id, **kwargs)
+    flat = gym.make(env_id, **kwargs, observation_format="flat", info_level="none")
+    dict_space = flat.unwrapped.dict_observation_space
+    assert flat.observation_space.shape == (sum(box.shape[0] for box in dict_space.values()),)
+    obs_d, _ = reference.reset(seed=4)
+    obs_f, info_f = flat.reset(seed=4)
+    action = reference.action_space.sample()
+    for _ in range(10):
+        obs_d, r_d, _, _, _ = reference.step(action)
+        obs_f, r_f, _, _, info_f = flat.step(action)
+    assert info_f == {} and r_f == r_d
+    assert obs_f.dtype == np.float64 and flat.observation_space.contains(obs_f)
+    np.testing.assert_array_equal(obs_f, flatten(reference.observation_space, obs_d))
+    np.testing.assert_array_equal(unflatten(dict_space, obs_f)["gyro"], obs_d["gyro"])   # the bias included
+
+
+def test_observation_format_is_validated():
+    with pytest.raises(ValueError, match="observation_format"):
+        gym.make("ftcgym/Quadrotor-v0", observation_format="tuple")

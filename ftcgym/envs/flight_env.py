@@ -10,6 +10,7 @@ import warnings
 
 import gymnasium as gym
 import numpy as np
+from gymnasium import spaces
 
 from ..models.checks import POSITIVE, Range, no_unknown, number, real_array
 from ..models.constants import GRAVITY
@@ -46,7 +47,8 @@ class FlightEnv(gym.Env):
     CRASH_TILT = np.deg2rad(60.0)   # rad, ground contact more tilted than this is a crash
 
     def _setup(self, vehicle, vehicle_overrides, wind, faults, task, max_episode_seconds, physics_hz, agent_hz,
-               render_mode, render_size=RENDER_SIZE, unknown: dict | None = None, info_level: str = "full") -> None:
+               render_mode, render_size=RENDER_SIZE, unknown: dict | None = None, info_level: str = "full",
+               observation_format: str = "dict") -> None:
         """Validate the shared keyword arguments and build the task, wind and faults (`_open_world` follows,
         once the subclass has validated the rest, so a failed make holds no PyBullet client)."""
         self.world = None
@@ -64,6 +66,9 @@ class FlightEnv(gym.Env):
         if info_level not in INFO_LEVELS:
             raise ValueError(f"info_level: {info_level!r}; accepted: {list(INFO_LEVELS)}")
         self.info_level = info_level
+        if observation_format not in OBSERVATION_FORMATS:
+            raise ValueError(f"observation_format: {observation_format!r}; accepted: {list(OBSERVATION_FORMATS)}")
+        self.observation_format = observation_format
         # gymnasium's RecordVideo films one frame per step at render_fps: the agent rate makes it real time
         self.metadata = {**self.metadata, "render_fps": _whole(self.agent_hz)}
         self.task = self._check_task(make_task(task))
@@ -73,6 +78,20 @@ class FlightEnv(gym.Env):
         self._R_array = np.zeros((3, 3))       # the attitude as a matrix, for the rotations into the world
         self._R_flat = self._R_array.reshape(9)
         self._vec3 = np.zeros(3)
+
+    def _set_observation_space(self, space) -> None:
+        """The Dict of readings (`dict_observation_space`), and `observation_space`: that Dict, or at
+        observation_format "flat" one Box of its entries end to end in its (sorted) key order, as
+        `gymnasium.spaces.flatten` lays them out (`gymnasium.spaces.unflatten` gives the Dict back)."""
+        self.dict_observation_space = space
+        self._observation_keys = tuple(space.spaces)
+        self.observation_space = space if self.observation_format == "dict" else spaces.flatten_space(space)
+
+    def _format(self, readings: dict):
+        """An observation in `observation_format`."""
+        if self.observation_format == "dict":
+            return readings
+        return np.concatenate([readings[key] for key in self._observation_keys])
 
     def _open_world(self) -> None:
         """Connect the PyBullet client (the last step of `__init__`). A window needs a display: without one
@@ -143,7 +162,7 @@ class FlightEnv(gym.Env):
         """Per-episode vehicle overrides must keep the observations inside the space fixed at `gym.make`."""
         space = self._make_observation_space(params)
         for key, box in space.spaces.items():
-            fixed = self.observation_space[key]
+            fixed = self.dict_observation_space[key]
             if np.any(box.high > fixed.high) or np.any(box.low < fixed.low):
                 raise ValueError(f"reset options: vehicle_overrides widen the bounds of observation {key!r} beyond "
                                  f"the space fixed at gym.make; pass these overrides to gym.make instead")
@@ -159,7 +178,7 @@ class FlightEnv(gym.Env):
         self._check_open("step")
         for _ in range(self.substeps):
             self._physics_step()
-        obs = self._observe()
+        obs = self._format(self._observe())
         self._check_crash()
         terminated = self._crashed
         truncated = not terminated and self.time >= self.max_episode_seconds - 1e-9
@@ -307,10 +326,14 @@ def check_command(action, size: int, low: float, high: float, what: str) -> list
 
 #: the keyword arguments of the simulator envs (`gym.make`)
 KEYWORDS = ("vehicle", "vehicle_overrides", "wind", "faults", "task", "max_episode_seconds", "physics_hz", "agent_hz",
-            "sensors", "render_mode", "render_size", "info_level")
-#: `info_level`: "full" (the info contract, docs/concepts.md) or "minimal" (no `truth`: for training loops that
-#: never read it; the benchmark and the training tasks, whose rewards read the truth, keep "full")
-INFO_LEVELS = ("full", "minimal")
+            "sensors", "render_mode", "render_size", "info_level", "observation_format")
+#: `info_level`: "full" (the info contract, docs/concepts.md), "minimal" (no `truth`: for training loops that
+#: never read it; the benchmark and the training tasks, whose rewards read the truth, keep "full") or "none"
+#: (an empty dict: the cheapest for vector envs, which merge every key of every env's info at every step)
+INFO_LEVELS = ("full", "minimal", "none")
+#: `observation_format`: "dict" (the readings by name: what the policies and detectors of ftcgym read) or
+#: "flat" (one float64 array, `FlightEnv._set_observation_space`: for learning code and vector envs)
+OBSERVATION_FORMATS = ("dict", "flat")
 def check_render_size(size) -> tuple[int, int]:
     """(width, height) in pixels: two whole numbers in [16, MAX_RENDER_SIDE]."""
     try:

@@ -61,13 +61,13 @@ class QuadPlaneEnv(FlightEnv):
     def __init__(self, vehicle: str = "vsqp", vehicle_overrides: dict | None = None, wind: dict | None = None,
                  faults=None, task="mission", max_episode_seconds: float = 240.0, physics_hz: float = 500.0,
                  agent_hz: float = 100.0, sensors: dict | None = None, render_mode: str | None = None,
-                 render_size=RENDER_SIZE, info_level: str = "full", **unknown):
+                 render_size=RENDER_SIZE, info_level: str = "full", observation_format: str = "dict", **unknown):
         self._setup(vehicle, vehicle_overrides, wind, faults, task, max_episode_seconds, physics_hz, agent_hz,
-                    render_mode, render_size, unknown, info_level)
+                    render_mode, render_size, unknown, info_level, observation_format)
         self._sensor_config = QuadPlaneSensorConfig.from_overrides(sensors)
         self._surface_alpha = 1.0 - math.exp(-self.dt / SURFACE_TIME_CONSTANT)
-        self.observation_space = self._make_observation_space(self.params)
-        self._limits = {key: (box.low, box.high) for key, box in self.observation_space.spaces.items()}
+        self._set_observation_space(self._make_observation_space(self.params))
+        self._limits = {key: (box.low, box.high) for key, box in self.dict_observation_space.spaces.items()}
         self._build_vehicle()
         self.action_space = spaces.Box(ACTION_LOW, ACTION_HIGH, dtype=np.float32)
         self._open_world()
@@ -140,7 +140,7 @@ class QuadPlaneEnv(FlightEnv):
         self.sensors.reset(rng)
         self._at_rest_readings()
         self._air_body = self._air_velocity()
-        return self._observe(), self._info()
+        return self._format(self._observe()), self._info()
 
     def _start_heading(self) -> float:
         """Nose into the mean wind, as a pilot places a VTOL for take-off (north in calm air): in quad mode
@@ -225,7 +225,10 @@ class QuadPlaneEnv(FlightEnv):
         return math.atan2(w, u) if abs(u) + abs(w) > 1e-9 else 0.0
 
     def _info(self) -> dict:
-        """A fresh info dict (docs/concepts.md, 'The info contract'); without `truth` at info_level "minimal"."""
+        """A fresh info dict (docs/concepts.md, 'The info contract'); without `truth` at info_level "minimal",
+        empty at "none"."""
+        if self.info_level == "none":
+            return {}
         info = {"time": self.time, "fault": self._faults.current(self.time), "faults": self._faults.as_dicts()}
         if self.info_level == "full":
             rotors, pusher = self.hover_rotors, self.pusher

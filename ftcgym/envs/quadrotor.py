@@ -61,12 +61,12 @@ class QuadrotorEnv(FlightEnv):
     def __init__(self, vehicle: str = "bebop2", vehicle_overrides: dict | None = None, wind: dict | None = None,
                  faults=None, task="hover", max_episode_seconds: float = 30.0, physics_hz: float = 500.0,
                  agent_hz: float = 500.0, sensors: dict | None = None, render_mode: str | None = None,
-                 render_size=RENDER_SIZE, info_level: str = "full", **unknown):
+                 render_size=RENDER_SIZE, info_level: str = "full", observation_format: str = "dict", **unknown):
         self._setup(vehicle, vehicle_overrides, wind, faults, task, max_episode_seconds, physics_hz, agent_hz,
-                    render_mode, render_size, unknown, info_level)
+                    render_mode, render_size, unknown, info_level, observation_format)
         self._sensor_config = SensorConfig.from_overrides(sensors)
-        self.observation_space = self._make_observation_space(self.params)
-        self._limits = {key: (box.low, box.high) for key, box in self.observation_space.spaces.items()}
+        self._set_observation_space(self._make_observation_space(self.params))
+        self._limits = {key: (box.low, box.high) for key, box in self.dict_observation_space.spaces.items()}
         self._build_vehicle()
         self.action_space = spaces.Box(0.0, 1.0, (4,), np.float32)
         self._open_world()
@@ -135,7 +135,7 @@ class QuadrotorEnv(FlightEnv):
         self._wind = tuple(self.wind.reset(rng).tolist())
         self.sensors.reset(rng)
         self._at_rest_readings()
-        obs = self._observe()
+        obs = self._format(self._observe())
         return obs, self._info()
 
     # ----------------------------------------------------------------------------------------- step
@@ -190,7 +190,10 @@ class QuadrotorEnv(FlightEnv):
         return 1.0 - 0.5 * min(error, 4.0) - 0.5 * (1.0 - self._Rm[8]) - 0.05 * effort / 4
 
     def _info(self) -> dict:
-        """A fresh info dict (docs/concepts.md, 'The info contract'); without `truth` at info_level "minimal"."""
+        """A fresh info dict (docs/concepts.md, 'The info contract'); without `truth` at info_level "minimal",
+        empty at "none"."""
+        if self.info_level == "none":
+            return {}
         info = {"time": self.time, "fault": self._faults.current(self.time), "faults": self._faults.as_dicts()}
         if self.info_level == "full":
             rotors, wind = self.rotors, self._wind
