@@ -25,11 +25,16 @@ def test_perf_json_names_its_fields(capsys):
     """The fields of `ftcgym perf --json` (not the numbers): what docs and scripts quote."""
     assert main(["perf", "--steps", "30", "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
-    assert set(report) == {"env", "bare_pybullet_physics_steps_per_s", "detector_us_per_update",
+    assert set(report) == {"machine", "env", "vector", "bare_pybullet_physics_steps_per_s", "detector_us_per_update",
                            "detector_us_per_step", "detector_budget_us"}
+    assert set(report["machine"]) == {"cpu", "cores", "load_average", "python", "numpy", "pybullet", "gymnasium",
+                                      "numba"}
+    assert set(report["vector"]["steps_per_s"]) == {"one", "sync", "async"}
+    assert all(rate > 0 for rate in report["vector"]["steps_per_s"].values())
     assert report["detector_budget_us"] == DETECTOR_BUDGET_US == 18.0
     assert set(report["detector_us_per_update"]) == set(report["detector_us_per_step"]) == set(DETECTORS)
-    assert {row["case"] for row in report["env"]} >= {"Quadrotor random, 500/500 Hz", "QuadPlane autopilot, 500/100 Hz"}
+    assert {row["case"] for row in report["env"]} >= {"Quadrotor random, 500/500 Hz", "QuadPlane autopilot, 500/100 Hz",
+                                                      "Quadrotor random + loe_kalman, 500/500 Hz"}
     for row in report["env"]:
         assert set(row) == {"case", "steps_per_s", "physics_steps_per_s", "sim_s_per_wall_s", "resets", "reset_ms",
                             "wall_s", "peak_rss_mib", "rss_growth_mib", "step_only_physics_steps_per_s",

@@ -16,8 +16,10 @@ time).
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+import os
 import resource
 import time
 
@@ -39,6 +41,7 @@ CASES = (
     ("Quadrotor random, 240/30 Hz", QUADROTOR, {"physics_hz": 240, "agent_hz": 30}, "random"),
     ("Quadrotor random, 500/500 Hz", QUADROTOR, {}, "random"),
     ("Quadrotor nominal, 500/500 Hz", QUADROTOR, {}, "nominal"),
+    ("Quadrotor random + loe_kalman, 500/500 Hz", QUADROTOR, {}, "random+loe_kalman"),
     ("QuadPlane random, 500/100 Hz", QUADPLANE, {}, "random"),
     ("QuadPlane random, 500/500 Hz", QUADPLANE, {"agent_hz": 500}, "random"),
     ("QuadPlane autopilot, 500/100 Hz", QUADPLANE, {}, "autopilot"),
@@ -58,6 +61,10 @@ def add_parser(subparsers) -> None:
 def measure(env_id: str, env_kwargs: dict, actor: str, steps: int, seed: int) -> dict:
     """Steps/s (agent and physics), simulated s per wall s and reset cost of one case."""
     env = gym.make(env_id, **{**WORKLOAD[env_id], **env_kwargs})
+    actor, _, detector = actor.partition("+")      # "random+loe_kalman": the env wrapped with that detector
+    if detector:
+        from ftcgym.fdd import wrap_with_detector
+        env = wrap_with_detector(detector, env)
     # Random actions come from one numpy draw up front: Box.sample() alone costs ~50 us a call, which
     # would measure gymnasium's sampler rather than the env.
     space = env.action_space
@@ -182,11 +189,48 @@ def _record_flight(env_id: str, steps: int, seed: int):
     return env, samples
 
 
+#: the vector-env rows: Quadrotor-v0's defaults with the learning-code settings, vector envs without copies
+VECTOR_KWARGS = {"observation_format": "flat", "info_level": "none"}
+
+
+def vector_scaling(steps: int, seed: int, num_envs: int = 2) -> dict:
+    """Aggregate env steps/s of `gym.make_vec` (sync and async, `num_envs` envs, copy=False) and of one env,
+    random actions, on Quadrotor-v0 with `VECTOR_KWARGS` (resets inside, as autoreset does them)."""
+    rng = np.random.default_rng(seed)
+    actions = rng.uniform(0.0, 1.0, (steps, num_envs, 4)).astype(np.float32)
+    rates = {"one": measure(QUADROTOR, {**VECTOR_KWARGS, "max_episode_seconds": 30.0}, "random", steps,
+                            seed)["steps_per_s"]}
+    for mode in ("sync", "async"):
+        envs = gym.make_vec(QUADROTOR, num_envs=num_envs, vectorization_mode=mode, vector_kwargs={"copy": False},
+                            **VECTOR_KWARGS)
+        envs.reset(seed=seed)
+        start = time.perf_counter()
+        for i in range(steps // num_envs):
+            envs.step(actions[i])
+        rates[mode] = (steps // num_envs) * num_envs / (time.perf_counter() - start)
+        envs.close()
+    return {"num_envs": num_envs, "env_kwargs": VECTOR_KWARGS, "steps_per_s": rates,
+            "ratio_to_one_env": {mode: rates[mode] / rates["one"] for mode in ("sync", "async")}}
+
+
+def machine() -> dict:
+    """What the figures were measured on: CPU model, cores, load average at the start, Python and libraries."""
+    import platform
+    from importlib import metadata
+    cpu = platform.processor()
+    with contextlib.suppress(OSError), open("/proc/cpuinfo") as info:
+        cpu = next((line.split(":", 1)[1].strip() for line in info if line.startswith("model name")), cpu)
+    return {"cpu": cpu, "cores": os.cpu_count(), "load_average": round(os.getloadavg()[0], 2),
+            "python": platform.python_version(),
+            **{name: metadata.version(name) for name in ("numpy", "pybullet", "gymnasium", "numba")}}
+
+
 def _rss_mib() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 def run(args, argv: list[str] | None = None) -> int:
+    host = machine()
     measure(QUADROTOR, {}, "nominal", 200, args.seed)  # warm-up: one-time allocations must not read as growth
     measure(QUADPLANE, {}, "autopilot", 200, args.seed)
     bare = bare_pybullet_loop(args.steps)
@@ -199,22 +243,24 @@ def run(args, argv: list[str] | None = None) -> int:
                    pybullet_share=min(row["physics_steps_per_s"] / bare, 1.0))
         rows.append(row)
     costs = detector_step_costs(min(args.steps, 5000), args.seed)
+    vector = vector_scaling(min(args.steps, 10000), args.seed)
     if args.json:
-        print(json.dumps({"env": rows, "bare_pybullet_physics_steps_per_s": bare,
+        print(json.dumps({"machine": host, "env": rows, "vector": vector, "bare_pybullet_physics_steps_per_s": bare,
                           "detector_us_per_update": {name: c["update_us"] for name, c in costs.items()},
                           "detector_us_per_step": {name: c["step_us"] for name, c in costs.items()},
                           "detector_budget_us": DETECTOR_BUDGET_US}, indent=2))
         return 0
     print(f"ftcgym perf: {args.steps} agent steps per case, one process")
+    print("machine: " + ", ".join(f"{key} {value}" for key, value in host.items()))
     for env_id, workload in WORKLOAD.items():
         print(f"workload {env_id}: {workload}")
     print(f"bare PyBullet loop (ground + one box; force, torque, step, state read): {bare:.0f} physics steps/s")
-    header = (f"{'case':34} {'steps/s':>9} {'physics/s':>10} {'sim s/s':>8} {'step-only':>9} {'of bare':>8} "
+    header = (f"{'case':42} {'steps/s':>9} {'physics/s':>10} {'sim s/s':>8} {'step-only':>9} {'of bare':>8} "
               f"{'in PyB':>7} {'resets':>7} {'reset ms':>9} {'peak MiB':>9} {'growth MiB':>10}")
     print(header)
     print("-" * len(header))
     for r in rows:
-        print(f"{r['case']:34} {r['steps_per_s']:9.0f} {r['physics_steps_per_s']:10.0f} {r['sim_s_per_wall_s']:8.1f} "
+        print(f"{r['case']:42} {r['steps_per_s']:9.0f} {r['physics_steps_per_s']:10.0f} {r['sim_s_per_wall_s']:8.1f} "
               f"{r['step_only_sim_s_per_wall_s']:9.1f} {r['bare_loop_share']:8.0%} {r['pybullet_share']:7.0%} "
               f"{r['resets']:7d} {r['reset_ms']:9.3f} {r['peak_rss_mib']:9.1f} {r['rss_growth_mib']:10.1f}")
     print("\nsim s/s: simulated seconds per wall second, resets included; step-only: the same without the resets' "
@@ -226,4 +272,9 @@ def run(args, argv: list[str] | None = None) -> int:
     for name, c in costs.items():
         verdict = "under" if c["update_us"] < DETECTOR_BUDGET_US else "OVER"
         print(f"  {name:17} {c['update_us']:8.1f} {c['step_us']:16.1f}  {verdict}")
+    rates = vector["steps_per_s"]
+    print(f"\nvector envs: gym.make_vec({QUADROTOR!r}, num_envs={vector['num_envs']}, copy=False) with "
+          f"{VECTOR_KWARGS}, aggregate env steps/s:\n  one env {rates['one']:.0f}, sync {rates['sync']:.0f} "
+          f"({vector['ratio_to_one_env']['sync']:.2f}x), async {rates['async']:.0f} "
+          f"({vector['ratio_to_one_env']['async']:.2f}x)")
     return 0
