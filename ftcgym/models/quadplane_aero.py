@@ -134,6 +134,12 @@ def _in_plane_force(half_rho_area, v_chord, v_normal, cl, cd):  # pragma: no cov
 
 
 @njit(cache=True)
+def speed_squared(u, v, w):  # pragma: no cover (compiled)
+    """|V|^2 as u ** 2 + v ** 2 + w ** 2 (Python's pow, `py_pow`)."""
+    return py_pow(u, 2.0) + py_pow(v, 2.0) + py_pow(w, 2.0)
+
+
+@njit(cache=True)
 def fuselage_loads(c, u, v, w, speed_sq):  # pragma: no cover (compiled)
     """001 eq. (8) F_x = K_xf u^2 (drag, against u) and eq. (10) F_y = K_yfb beta V^2 with beta ~ v / V,
     written -1/2 rho |V| CdA_y v so it holds at any sideslip (`speed_sq` = |V|^2). 001 neglects the z force;
@@ -255,7 +261,7 @@ def aero_loads(c, u, v, w, p, q, r, skew, aileron, elevator, rudder, omega, effe
                pusher_torque):  # pragma: no cover (compiled)
     """`aero_wrench` on floats (omega, effectiveness: arrays of the 4 hover rotors): (fx, fy, fz, l, m, n)."""
     sin_skew, cos_skew = math.sin(skew), math.cos(skew)
-    speed_sq = py_pow(u, 2.0) + py_pow(v, 2.0) + py_pow(w, 2.0)
+    speed_sq = speed_squared(u, v, w)
     fx, fy, fz = fuselage_loads(c, u, v, w, speed_sq)
     (wx, wy, wz), (wl, wm, wn), downwash = wing_loads(c, u, v, w, p, q, sin_skew, cos_skew, aileron)
     (tx, ty, tz), (tl, tm, tn) = tail_loads(c, u, v, w, p, q, r, elevator, rudder, downwash, speed_sq)
@@ -297,7 +303,7 @@ def stall_speed(params) -> float:
 def fuselage_force(params, vel) -> tuple:
     """The fuselage's force (`fuselage_loads`), a 3-tuple."""
     u, v, w = _floats(vel)
-    return fuselage_loads(_constants(params), u, v, w, u ** 2 + v ** 2 + w ** 2)
+    return fuselage_loads(_constants(params), u, v, w, speed_squared(u, v, w))
 
 
 def wing_flow(params, vel, skew: float):
