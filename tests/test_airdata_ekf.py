@@ -22,8 +22,9 @@ from ftcgym.fdd.airdata_ekf import (
     ComponentForceModel,
     az_covariance_gain,
     butterworth_prefilter,
-    ekf_step,
+    ekf_predict,
 )
+from ftcgym.fdd.kalman import update
 from ftcgym.models.vsqp import VSQP
 
 MISSION_WIND = {"mean": [-5.0, 0.0, 0.0], "turbulence": "light"}
@@ -71,7 +72,8 @@ def test_model_error_scales_every_coefficient():
 
 
 def test_one_ekf_step_matches_a_hand_computation():
-    """Linear measurement, level attitude, no rotation: the step equals the Kalman filter written out."""
+    """Linear measurement, level attitude, no rotation: the prediction and update equal the Kalman filter written
+    out."""
     x = np.array([10.0, 1.0, 0.5, -3.0, 2.0, 0.0])
     P = np.diag([1.0, 1.0, 1.0, 0.1, 0.1, 0.1])
     Q = np.diag(np.concatenate([TABLE_1_Q["accel"], TABLE_1_Q["gyro"], TABLE_1_Q["wind"]]))
@@ -79,7 +81,9 @@ def test_one_ekf_step_matches_a_hand_computation():
     a, dt = np.array([0.3, -0.1, -9.81]), 0.04
     Hm = np.vstack([np.hstack([np.eye(3), np.eye(3)]), np.hstack([np.diag([-0.2, -0.3, -0.4]), np.zeros((3, 3))])])
     z = np.array([7.2, 3.1, 0.4, -2.0, -0.2, -0.3])
-    x_new, P_new, y, S = ekf_step(x, P, dt, (a, np.zeros(3), np.eye(3)), z, lambda s: Hm @ s, lambda s: Hm, Q, R)
+    x_minus, P_minus = ekf_predict(x, P, dt, a, np.zeros(3), np.eye(3), Q)
+    y = z - Hm @ x_minus
+    x_new, P_new, _, _ = update(x_minus, P_minus, y, Hm, R)
     # By hand: u' = a + g e_z (no rotation), wind constant; L Q L^T adds the accel block (v x w_omega is ~1e-9).
     x_pred = x + dt * np.concatenate([a + [0, 0, 9.81], np.zeros(3)])
     L = np.zeros((6, 9))
@@ -87,6 +91,7 @@ def test_one_ekf_step_matches_a_hand_computation():
     L[:3, 3:6] = np.array([[0, -x[2], x[1]], [x[2], 0, -x[0]], [-x[1], x[0], 0]])
     P_pred = P + L @ Q @ L.T
     K = P_pred @ Hm.T @ np.linalg.inv(Hm @ P_pred @ Hm.T + R)
+    assert np.allclose(x_minus, x_pred) and np.allclose(P_minus, P_pred, atol=1e-12)
     assert np.allclose(y, z - Hm @ x_pred)
     assert np.allclose(x_new, x_pred + K @ (z - Hm @ x_pred), atol=1e-10)
     assert np.allclose(P_new, (np.eye(6) - K @ Hm) @ P_pred, atol=1e-12)

@@ -77,7 +77,6 @@ class FlightEnv(gym.Env):
         self._check_faults(self.params, self.fault_specs)
         self._R_array = np.zeros((3, 3))       # the attitude as a matrix, for the rotations into the world
         self._R_flat = self._R_array.reshape(9)
-        self._vec3 = np.zeros(3)
 
     def _set_observation_space(self, space) -> None:
         """The Dict of readings (`dict_observation_space`), and `observation_space`: that Dict, or at
@@ -185,17 +184,6 @@ class FlightEnv(gym.Env):
         if self.render_mode == "human":
             self.render()
         return obs, terminated, truncated
-
-    def _integrate(self, force, moment) -> None:
-        """One physics step with the body-frame force and moment (3 floats each) (`_integrate_world`).
-
-        The two rotations into the world frame are numpy matrix-vector products: BLAS rounds them with a fused
-        multiply-add that plain Python cannot reproduce, and the trajectories keep their bits with it."""
-        rotate, vec = self._R_array, self._vec3
-        vec[0], vec[1], vec[2] = force
-        force_ned = np.dot(rotate, vec).tolist()
-        vec[0], vec[1], vec[2] = moment
-        self._integrate_world(force_ned, np.dot(rotate, vec).tolist())
 
     def _integrate_world(self, force_ned, moment_ned) -> None:
         """One physics step with the force and moment in the world frame (NED); then the faults of the new time

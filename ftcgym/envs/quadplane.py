@@ -27,13 +27,21 @@ import math
 
 import numpy as np
 from gymnasium import spaces
+from numba import njit
 
 from ..models.faults import QUADPLANE_KINDS, FaultSchedule, parse_faults, resolve
 from ..models.geometry import quat_from_euler
-from ..models.pusher import PusherMotor
-from ..models.quadplane_aero import QuadPlaneAero
-from ..models.rotors import RotorSet
-from ..models.sensors import ACCEL_LIMIT, GYRO_LIMIT, QuadPlaneSensorConfig, QuadPlaneSensors, SensorLimits
+from ..models.pusher import THRUST, TORQUE, PusherMotor, pusher_step
+from ..models.quadplane_aero import QuadPlaneAero, aero_loads
+from ..models.rotors import EFFECTIVENESS, OMEGA, RotorSet, advance_speeds
+from ..models.sensors import (
+    ACCEL_LIMIT,
+    GYRO_LIMIT,
+    QuadPlaneSensorConfig,
+    QuadPlaneSensors,
+    SensorLimits,
+    advance_phase,
+)
 from ..models.vsqp import make_vsqp_params
 from .flight_env import RENDER_SIZE, FlightEnv, check_action
 from .visuals import QuadPlaneLook
@@ -48,6 +56,10 @@ CRASH_PENALTY = 100.0
 SURFACE_TIME_CONSTANT = 0.03       # s, control-surface servo lag (assumed, hobby-grade digital servo)
 #: a motor that lost its propeller spins 30% faster with little inertia, as for the quadrotor (000 Fig. 8)
 UNLOADED_SPEED_RATIO, UNLOADED_TIME_CONSTANT = 1.3, 0.02
+#: `QuadPlaneEnv._controls`: the hover-rotor speed set-points [0:4] (rad/s), then these (throttle; rad)
+THROTTLE, AILERON_CMD, SKEW_CMD = 4, 5, 8
+#: `QuadPlaneEnv._motion`: the wing skew and the aileron, elevator, rudder angles (rad)
+SKEW, AILERON = 0, 1
 
 
 class QuadPlaneEnv(FlightEnv):
@@ -66,6 +78,7 @@ class QuadPlaneEnv(FlightEnv):
                     render_mode, render_size, unknown, info_level, observation_format)
         self._sensor_config = QuadPlaneSensorConfig.from_overrides(sensors)
         self._surface_alpha = 1.0 - math.exp(-self.dt / SURFACE_TIME_CONSTANT)
+        self._controls, self._motion = np.zeros(9), np.zeros(4)
         self._set_observation_space(self._make_observation_space(self.params))
         self._limits = {key: (box.low, box.high) for key, box in self.dict_observation_space.spaces.items()}
         self._build_vehicle()
@@ -93,6 +106,9 @@ class QuadPlaneEnv(FlightEnv):
                                      UNLOADED_SPEED_RATIO, UNLOADED_TIME_CONSTANT)
         self.aero = QuadPlaneAero(p)
         self.pusher = PusherMotor(p)
+        # the constants of `physics_loads`, in its order
+        self._loads_params = np.array([self.dt, *self.hover_rotors.gains(self.dt), p.skew_rate_limit * self.dt,
+                                       self._surface_alpha], dtype=float)
         self._nominal_pusher = {name: getattr(self.pusher, name) for name in ("theta_1", "c_v", "I_0")}
         high = {key: top[0] for key, (_, top) in self._limits.items()}
         limits = SensorLimits(high["position"], high["velocity"], high["hover_rotor_speed"], high["pusher_speed"],
@@ -130,16 +146,13 @@ class QuadPlaneEnv(FlightEnv):
         self._start(position, attitude)
         self.hover_rotors.reset(0.0)
         self.pusher.reset(0.0)
-        self.skew = 0.0
-        self._skew_cmd = 0.0
-        self.surfaces = self._surface_cmd = (0.0, 0.0, 0.0)
-        self._omega_cmd = [0.0] * 4
-        self._throttle = 0.0
+        self._controls[:] = 0.0
+        self._motion[:] = 0.0
         self._apply_faults()
         self._wind = tuple(self.wind.reset(rng).tolist())
         self.sensors.reset(rng)
         self._at_rest_readings()
-        self._air_body = self._air_velocity()
+        self._air_body = air_velocity(self._R_array, self._v, self._wind)
         return self._format(self._observe()), self._info()
 
     def _start_heading(self) -> float:
@@ -157,37 +170,25 @@ class QuadPlaneEnv(FlightEnv):
         return obs, self._reward(), terminated, truncated, self._info()
 
     def _set_commands(self, command: np.ndarray) -> None:
-        self._omega_cmd = self.hover_rotors.command_to_omega(command[:4]).tolist()
-        self._throttle = float(command[4])
-        self._surface_cmd = (command[5:8] * self._surface_limit).tolist()
-        self._skew_cmd = float(command[8]) * 0.5 * np.pi
+        controls = self._controls
+        controls[:4] = self.hover_rotors.command_to_omega(command[:4])
+        controls[THROTTLE] = command[4]
+        controls[AILERON_CMD:SKEW_CMD] = command[5:8] * self._surface_limit
+        controls[SKEW_CMD] = float(command[8]) * 0.5 * np.pi
 
     def _physics_step(self) -> None:
-        dt, rotors = self.dt, self.hover_rotors
-        omega, _ = rotors.advance(self._omega_cmd, dt)
-        self._move_wing_and_surfaces(dt)
-        self._wind = self.wind.advance()
-        air_body = self._air_velocity()
-        self.pusher.step(self._throttle, max(air_body[0], 0.0), dt)
-        force, moment = self.aero.wrench(air_body, self._w, self.skew, self.surfaces, omega,
-                                         rotors.effectiveness.tolist(), self.pusher.thrust, self.pusher.torque)
-        self.sensors.advance_rotor_phase(omega, dt)
-        self._integrate(force, moment)
-        self._air_body = air_body
+        """Wind, then the actuators, the air velocity and the loads on the body (`physics_loads`, compiled)."""
+        wind = self._wind = self.wind.advance()
+        loads = physics_loads(self.hover_rotors.state, self._controls, self._motion, self.aero.constants,
+                              self.pusher.state, self.pusher.constants, self._loads_params, self._R_array, self._v,
+                              self._w, wind, self.sensors.rotor_angles)
+        self._integrate_world(loads[:3], loads[3:6])
+        self._air_body = loads[6:]
 
-    def _air_velocity(self) -> tuple:
-        """R^T (v - wind): the velocity relative to the air in the body frame (floats)."""
-        R, v, wind = self._Rm, self._v, self._wind
-        dx, dy, dz = v[0] - wind[0], v[1] - wind[1], v[2] - wind[2]
-        return (R[0] * dx + R[3] * dy + R[6] * dz, R[1] * dx + R[4] * dy + R[7] * dz,
-                R[2] * dx + R[5] * dy + R[8] * dz)
-
-    def _move_wing_and_surfaces(self, dt: float) -> None:
-        """The wing turns toward its command at the skew rate limit; surfaces follow their servos' lag."""
-        step = self.params.skew_rate_limit * dt
-        self.skew += min(max(self._skew_cmd - self.skew, -step), step)
-        alpha, (c0, c1, c2), (s0, s1, s2) = self._surface_alpha, self._surface_cmd, self.surfaces
-        self.surfaces = (s0 + alpha * (c0 - s0), s1 + alpha * (c1 - s1), s2 + alpha * (c2 - s2))
+    @property
+    def skew(self) -> float:
+        """The wing's skew angle (rad)."""
+        return self._motion.item(SKEW)
 
     def _apply_faults(self) -> None:
         """Hover-rotor and pusher faults in force from `self.time` on."""
@@ -237,9 +238,55 @@ class QuadPlaneEnv(FlightEnv):
                 "body_rates": np.array(self._w), "wind": np.array(self._wind), "airspeed": self.airspeed(),
                 "air_velocity_body": np.array(self._air_body), "angle_of_attack": self.angle_of_attack(),
                 "mass": self.params.mass, "rotor_effectiveness": rotors.effectiveness.copy(),
-                "rotor_speed": rotors.omega.copy(), "skew": self.skew, "surfaces": np.array(self.surfaces),
+                "rotor_speed": rotors.omega.copy(), "skew": self.skew, "surfaces": self._motion[AILERON:].copy(),
                 "pusher": {"omega": pusher.omega, "current": pusher.current, "thrust": pusher.thrust,
                            "theta_1": pusher.theta_1, "c_v": pusher.c_v, "I_0": pusher.I_0},
             }
         info.update(self._outcome())
         return info
+
+
+@njit(cache=True)
+def physics_loads(rotors, controls, motion, aero, pusher, pusher_constants, params, R, v, rates, wind,
+                  angles):  # pragma: no cover (compiled)
+    """One physics step of the actuators and the loads on the body, in the world frame: (fx, fy, fz, mx, my, mz)
+    NED, then the air velocity in the body frame (u, v, w) the loads were computed with.
+
+    In place: the hover-rotor speeds (`advance_speeds` on `rotors`, toward `controls`[:4]) and angles
+    (`advance_phase` on `angles`); the wing skew, toward its set-point at the skew rate limit, and the surfaces,
+    after their servos' first-order lag (`motion`); the pusher (`pusher_step`, at the throttle, fed the forward
+    air speed). The air velocity is R^T (v - wind); the loads are `aero_loads`' (pusher included), rotated into
+    the world frame by BLAS's products, as numpy's. `params`: dt, the gains of `RotorSet.gains`, the skew step
+    per physics step, the servos' lag factor."""
+    dt = params[0]
+    advance_speeds(rotors, controls[:4], dt, params[1], params[2], params[3], params[4])
+    advance_phase(angles, rotors[OMEGA], dt)
+    _move_wing_and_surfaces(motion, controls, params[5], params[6])
+    u, v_air, w = air_velocity(R, v, wind)
+    pusher_step(pusher, pusher_constants, controls[THROTTLE], max(u, 0.0), dt)
+    p, q, r = rates
+    loads = aero_loads(aero, u, v_air, w, p, q, r, motion[SKEW], motion[AILERON], motion[AILERON + 1],
+                       motion[AILERON + 2], rotors[OMEGA], rotors[EFFECTIVENESS], pusher[THRUST], pusher[TORQUE])
+    force, moment = np.empty(3), np.empty(3)
+    force[0], force[1], force[2], moment[0], moment[1], moment[2] = loads
+    force_ned, moment_ned = np.dot(R, force), np.dot(R, moment)
+    return (force_ned[0], force_ned[1], force_ned[2], moment_ned[0], moment_ned[1], moment_ned[2], u, v_air, w)
+
+
+@njit(cache=True)
+def _move_wing_and_surfaces(motion, controls, skew_step, servo_factor):  # pragma: no cover (compiled)
+    """The wing turns toward its set-point by at most `skew_step`; each surface moves `servo_factor` of the way
+    to its set-point (the servo's first-order lag over a physics step). In place on `motion`."""
+    skew = motion[SKEW]
+    motion[SKEW] = skew + min(max(controls[SKEW_CMD] - skew, -skew_step), skew_step)
+    for i in range(3):
+        angle = motion[AILERON + i]
+        motion[AILERON + i] = angle + servo_factor * (controls[AILERON_CMD + i] - angle)
+
+
+@njit(cache=True)
+def air_velocity(R, v, wind):  # pragma: no cover (compiled)
+    """R^T (v - wind): the velocity relative to the air in the body frame (3 floats)."""
+    dx, dy, dz = v[0] - wind[0], v[1] - wind[1], v[2] - wind[2]
+    return (R[0, 0] * dx + R[1, 0] * dy + R[2, 0] * dz, R[0, 1] * dx + R[1, 1] * dy + R[2, 1] * dz,
+            R[0, 2] * dx + R[1, 2] * dy + R[2, 2] * dz)

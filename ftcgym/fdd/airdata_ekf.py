@@ -13,7 +13,7 @@ TU Delft 2023 (001). Pipeline per sample:
    z = [V_N V_E V_D a_x a_y a_z] (eq. 36/45): GNSS velocity = R [u v w] + mu (eq. 3) and the specific
    force of the component model a = F(x, u) / m (eq. 31-33).
    Kinematics eq. (4): [u v w]' = -(omega + w_omega) x [u v w] + R^T [0 0 g] + a + w_a; wind eq. (5):
-   random walk. Q, R: Table 1 (Q per EKF step, see `ekf_step`). Wind process noise x100 for the first
+   random walk. Q, R: Table 1 (Q per EKF step, see `ekf_predict`). Wind process noise x100 for the first
    20 s (Sec. 5.4); a_z measurement variance x K_az(Lambda) (eq. 39 corrected, `az_covariance_gain`).
    Initial state 0, P0 = I except the wind states, which start at their Q (Sec. 5.3).
 3. The filter starts once airborne (Sec. 5.3): when the height, averaged over the last `takeoff_window` s of
@@ -46,6 +46,10 @@ TU Delft 2023 (001). Pipeline per sample:
    once the pusher RPM is isolated, a_x stays in use with the speed its current draws (003 eq. 1-4) instead of
    being dropped ("speed_from_current" in INNOVATION_DETECTORS).
 
+The prefilter and the EKF step are compiled (numba: `Biquad`'s array form; `ekf_cycle`: `ekf_predict`,
+`measurement` and `kalman.update`) with the operations and their order of the numpy code they replaced (BLAS's
+products and LAPACK's solve, as numpy's), so the estimates keep their bits.
+
 The force model (`ComponentForceModel`) is 001's (eq. 6-30: fuselage, hover rotors, wing, pusher; control
 surfaces and tail neglected as 001 Sec. 4 does): the simulator's own generalised forms
 (`ftcgym.models.quadplane_aero`, `ftcgym.models.pusher`) evaluated with its coefficients taken from the vehicle
@@ -68,12 +72,13 @@ from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 from scipy import signal
 
 from ..models.constants import GRAVITY
-from ..models.geometry import cross3, rotation_matrix
-from ..models.pusher import pusher_thrust
-from ..models.quadplane_aero import fuselage_force, wing_flow
+from ..models.geometry import rotation_matrix
+from ..models.pusher import TWO_PI, pusher_constants, thrust
+from ..models.quadplane_aero import aero_model, fuselage_loads, speed_squared, wing_flow_loads
 from ..settings import updated
 from . import kalman
 from .base import Biquad, model_with_error
@@ -221,7 +226,8 @@ class ComponentForceModel:
     1 + coefficient_error (error_seed None) or 1 +- coefficient_error with seeded random signs
     (`model_with_error`); `scale` holds the factor applied to each. The hover rotors are 001's own
     simplified model (eq. 15-17), not the simulator's tilted rotors. Control surfaces and tail are
-    neglected, as 001 Sec. 4 does.
+    neglected, as 001 Sec. 4 does. `aero`, `pusher` and `constants` (m, K_zh, k_d) are the compiled
+    formulas' constants (`specific_force_of`).
     """
 
     def __init__(self, params, coefficient_error: float = 0.10, error_seed: int | None = None):
@@ -230,72 +236,114 @@ class ComponentForceModel:
         self.mass = float(p.mass)
         self.k_f = p.hover_thrust_coefficient * math.cos(p.hover_tilt)
         self.k_d = p.hover_drag_coefficient
-
-    def hover_terms(self, omega_h) -> tuple:
-        """(K_h, T_zh): eq. (16)-(17)'s rotor-drag slope K_h = -k_d sum|omega|, growing with RPM (001 App. A,
-        Fig. 17a), so that F = K_h (u, v), and eq. (15)'s thrust T_zh = K_zh omega_h^2 summed over the rotors (along
-        -z). The sums run left to right from -0.0, as np.sum does below 8 terms, so the floats are np.sum's
-        (pairwise from 8 terms: there np.sum itself)."""
-        omega_h = np.asarray(omega_h, dtype=float).ravel()
-        if omega_h.size < 8:
-            total, squares = -0.0, -0.0
-            for w in omega_h.tolist():
-                total += abs(w)
-                squares += w * w
-        else:
-            total, squares = float(np.sum(np.abs(omega_h))), float(np.sum(omega_h * omega_h))
-        return -self.k_d * total, -self.k_f * squares
+        self.aero, self.pusher = aero_model(p).constants, pusher_constants(p)
+        self.constants = np.array([self.mass, self.k_f, self.k_d])
 
     def specific_force(self, air_velocity_body, omega_p: float, omega_h, skew: float) -> np.ndarray:
-        """eq. (31)-(33): [a_x, a_y, a_z] = (F_f + F_w + F_h + T_p e_x) / m, m/s^2."""
+        """eq. (31)-(33): [a_x, a_y, a_z] = (F_f + F_w + F_h + T_p e_x) / m, m/s^2 (`specific_force_of`)."""
         u, v, w = (float(x) for x in air_velocity_body)
-        return np.array(self.specific_force_floats(u, v, w, omega_p, self.hover_terms(omega_h), skew))
-
-    def specific_force_floats(self, u: float, v: float, w: float, omega_p: float, hover: tuple,
-                              skew: float) -> tuple:
-        """`specific_force` as floats, given the hover terms (`hover_terms`). Summed per component in the order
-        of the array sum it replaced, (F_f + F_w) + F_h, then + T_p on x."""
-        vel = (u, v, w)
-        fuselage, wing = fuselage_force(self.params, vel), wing_flow(self.params, vel, skew)[0]
-        slope, thrust = hover
-        mass = self.mass
-        return ((fuselage[0] + wing[0] + slope * u + pusher_thrust(self.params, omega_p, u)) / mass,
-                (fuselage[1] + wing[1] + slope * v) / mass,
-                (fuselage[2] + wing[2] + thrust) / mass)
+        hover = hover_terms(self.constants, np.asarray(omega_h, dtype=float).ravel())
+        return np.array(specific_force_of(self.aero, self.pusher, self.constants, u, v, w, float(omega_p) / TWO_PI,
+                                          hover, math.sin(skew), math.cos(skew)))
 
 
-_GRAVITY_NED = np.array([0.0, 0.0, GRAVITY])
+#: indices into `ComponentForceModel.constants`
+MASS, K_ZH, K_D = range(3)
 
 
-def ekf_step(x, P, dt, inputs, z, h, H, Q, R):
-    """One EKF cycle of 001 App. B with the kinematics of eq. (4)-(5). Returns (x, P, innovation y, S).
+@njit(cache=True)
+def hover_terms(model, omega_h):  # pragma: no cover (compiled)
+    """(K_h, T_zh): eq. (16)-(17)'s rotor-drag slope K_h = -k_d sum|omega|, growing with RPM (001 App. A,
+    Fig. 17a), so that F = K_h (u, v), and eq. (15)'s thrust T_zh = K_zh omega_h^2 summed over the rotors (along
+    -z). The sums run left to right from -0.0, as np.sum does below 8 terms (the 4 rotors)."""
+    total = squares = -0.0
+    for w in omega_h:
+        total += abs(w)
+        squares += w * w
+    return -model[K_D] * total, -model[K_ZH] * squares
 
-    inputs = (a, omega, Rot): filtered specific force, body rates and body->NED rotation. Prediction:
-    x- = x + f(x, u) dt (eq. 52 corrected), P- = Phi P Phi^T + L Q L^T with Phi = I + F dt (eq. 53 with the
-    discrete transition), F = df/dx (eq. 48), L = df/dw (eq. 49) for w = [w_a, w_omega, w_mu] and Q
-    (9 x 9, Table 1) taken as the covariance added per EKF step, as 001's onboard filter does. Update:
-    eq. (54)-(58) with the measurement function h(x-) and its Jacobian H(x-) (callables).
+
+@njit(cache=True)
+def specific_force_of(aero, pusher, model, u, v, w, revs, hover, sin_skew, cos_skew):  # pragma: no cover (compiled)
+    """eq. (31)-(33): (a_x, a_y, a_z) = (F_f + F_w + F_h + T_p e_x) / m at the air velocity (u, v, w), the pusher
+    at `revs` rev/s, the hover terms `hover` (`hover_terms`) and the skew of sine and cosine `sin_skew`,
+    `cos_skew`. Summed per component as (F_f + F_w) + F_h, then + T_p on x."""
+    fx, fy, fz = fuselage_loads(aero, u, v, w, speed_squared(u, v, w))
+    (wx, wy, wz), _, _, _, _ = wing_flow_loads(aero, u, v, w, sin_skew, cos_skew)
+    slope, thrust_h = hover
+    mass = model[MASS]
+    return ((fx + wx + slope * u + thrust(pusher, revs, max(u, 0.0))) / mass, (fy + wy + slope * v) / mass,
+            (fz + wz + thrust_h) / mass)
+
+
+@njit(cache=True)
+def ekf_predict(x, P, dt, a, omega, Rot, Q):  # pragma: no cover (compiled)
+    """The prediction of 001 App. B with the kinematics of eq. (4)-(5): (x-, P-).
+
+    x- = x + f(x, u) dt (eq. 52 corrected), f = [-omega x [u v w] + R^T [0 0 g] + a, 0] (eq. 4; eq. 5: wind
+    f = 0); P- = Phi P Phi^T + L Q L^T with Phi = I + F dt (eq. 53 with the discrete transition), F = df/dx
+    (eq. 48), L = df/dw (eq. 49) for w = [w_a, w_omega, w_mu] and Q (9 x 9, Table 1) taken as the covariance
+    added per EKF step, as 001's onboard filter does. inputs: filtered specific force `a`, body rates `omega`,
+    body->NED rotation `Rot`. (Zeros are added where the array forms this replaced added them, so that even
+    the signs of zeros are theirs.)
     """
-    a, omega, Rot = inputs
-    (p, q, r), (u, v, w) = omega.tolist(), x[:3].tolist()
-    # Built from floats with the elementwise operations of the array forms they replace (zeros included, so
-    # that even the signs of zeros are theirs).
-    c, g = cross3((p, q, r), (u, v, w)), Rot.T.dot(_GRAVITY_NED).tolist()
-    f = [-c[i] + g[i] + a[i] for i in range(3)] + [0.0, 0.0, 0.0]          # eq. (4); eq. (5): wind f = 0
-    x_pred = np.array([x_i + f_i * dt for x_i, f_i in zip(x.tolist(), f)])   # eq. (52), corrected
+    p, q, r = omega[0], omega[1], omega[2]
+    u, v, w = x[0], x[1], x[2]
+    c = (q * w - r * v, r * u - p * w, p * v - q * u)            # omega x [u v w]
+    g = np.dot(Rot.T, np.array([0.0, 0.0, GRAVITY]))
+    x_pred = np.empty(6)
+    for i in range(3):
+        x_pred[i] = x[i] + (-c[i] + g[i] + a[i]) * dt             # eq. (4), (52)
+    for i in range(3, 6):
+        x_pred[i] = x[i] + 0.0 * dt                               # eq. (5)
     # Phi = I + F dt, F = [-[omega]x 0; 0 0]
-    Phi = np.array([[1.0, 0.0 + r * dt, 0.0 + -q * dt, 0.0, 0.0, 0.0],
-                    [0.0 + -r * dt, 1.0, 0.0 + p * dt, 0.0, 0.0, 0.0],
-                    [0.0 + q * dt, 0.0 + -p * dt, 1.0, 0.0, 0.0, 0.0],
-                    [0.0, 0.0, 0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 0.0, 0.0, 1.0]])
+    Phi = np.eye(6)
+    Phi[0, 1], Phi[0, 2] = 0.0 + r * dt, 0.0 + -q * dt
+    Phi[1, 0], Phi[1, 2] = 0.0 + -r * dt, 0.0 + p * dt
+    Phi[2, 0], Phi[2, 1] = 0.0 + q * dt, 0.0 + -p * dt
     # L = [I [v]x 0; 0 0 I]: accelerometer noise w_a, gyro noise -(w_omega x v) = v x w_omega, wind random walk
-    L = np.array([[1.0, 0.0, 0.0, 0.0, -w, v, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, w, 0.0, -u, 0.0, 0.0, 0.0],
-                  [0.0, 0.0, 1.0, -v, u, 0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0],
-                  [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]])
-    P_pred = kalman.predict(P, L.dot(Q).dot(L.T), Phi)             # eq. (53)
-    y = z - h(x_pred)                                              # eq. (54)
-    x_new, P_new, S, _ = kalman.update(x_pred, P_pred, y, H(x_pred), R)   # eq. (55)-(58), M = I, Joseph form
-    return x_new, P_new, y, S
+    L = np.zeros((6, 9))
+    L[0, 0] = L[1, 1] = L[2, 2] = L[3, 6] = L[4, 7] = L[5, 8] = 1.0
+    L[0, 4], L[0, 5], L[1, 3], L[1, 5], L[2, 3], L[2, 4] = -w, v, w, -u, -v, u
+    return x_pred, kalman.predict(P, np.dot(np.dot(L, Q), L.T), Phi)       # eq. (53)
+
+
+@njit(cache=True)
+def measurement(x, Rot, aero, pusher, model, omega_p, omega_h, skew):  # pragma: no cover (compiled)
+    """h(x) of eq. (3) and (31)-(33), z = [V_N V_E V_D a_x a_y a_z] = [R [u v w] + mu, a(x)], and its Jacobian
+    H(x) of eq. (50): analytic for the GNSS rows, central differences (+-1e-4 m/s) of the force model."""
+    hover, revs = hover_terms(model, omega_h), omega_p / TWO_PI
+    sin_skew, cos_skew = math.sin(skew), math.cos(skew)
+    u, v, w = x[0], x[1], x[2]
+    h = np.empty(6)
+    h[:3] = np.dot(Rot, x[:3]) + x[3:]
+    h[3], h[4], h[5] = specific_force_of(aero, pusher, model, u, v, w, revs, hover, sin_skew, cos_skew)
+    H = np.zeros((6, 6))
+    H[:3, :3] = Rot
+    H[0, 3] = H[1, 4] = H[2, 5] = 1.0
+    # x[:3] +- 1e-4 e_j with the array sums' zeros: + 0.0 turns -0.0 into 0.0 (- 0.0 changes nothing)
+    for j, (du, dv, dw) in enumerate(((1e-4, 0.0, 0.0), (0.0, 1e-4, 0.0), (0.0, 0.0, 1e-4))):
+        f_plus = specific_force_of(aero, pusher, model, u + du, v + dv, w + dw, revs, hover, sin_skew, cos_skew)
+        f_minus = specific_force_of(aero, pusher, model, u - du, v - dv, w - dw, revs, hover, sin_skew, cos_skew)
+        for i in range(3):
+            H[3 + i, j] = (f_plus[i] - f_minus[i]) / 2e-4
+    return h, H
+
+
+@njit(cache=True)
+def ekf_cycle(s, x, P, dt, Rot, Q, R, aero, pusher, model, omega_p):  # pragma: no cover (compiled)
+    """One EKF step of 001 App. B on the filtered sample `s` (`AirdataEkfDetector._sample`'s layout) with the
+    attitude `Rot`, the covariances Q and R, the force model's constants and the pusher speed `omega_p`:
+    `ekf_predict`, then the update eq. (54)-(58) (M = I, Joseph form, `kalman.update`) with the measurement
+    z = [V_N V_E V_D a_x a_y a_z] and `measurement` at x-. Returns (x, P, innovation y), new arrays."""
+    a, omega = s[0:3], s[3:6]
+    x_pred, P_pred = ekf_predict(x, P, dt, a, omega, Rot, Q)
+    h, H = measurement(x_pred, Rot, aero, pusher, model, omega_p, s[14:18], s[18])
+    z = np.empty(6)
+    z[:3], z[3:] = s[10:13], a
+    y = z - h                                                     # eq. (54)
+    x_new, P_new, _, _ = kalman.update(x_pred, P_pred, y, H, R)
+    return x_new, P_new, y
 
 
 class TakeoffGate:
@@ -559,8 +607,8 @@ class AirdataEkfDetector:
     def _ekf_cycle(self, s: np.ndarray, time: float) -> None:
         """One EKF step on the filtered sample `s`, with the covariances of the sensors' current state."""
         q = s[6:10]
-        a, omega, Rot = s[0:3], s[3:6], rotation_matrix((q / math.sqrt(q.dot(q))).tolist())   # q / np.linalg.norm(q)
-        v_gnd, omega_p, omega_h, skew = s[10:13], float(s[13]), s[14:18], float(s[18])
+        Rot = rotation_matrix((q / math.sqrt(q.dot(q))).tolist())    # q / np.linalg.norm(q)
+        omega_p, skew = float(s[13]), float(s[18])
         model = self.model
         # Sec. 5.4: faster wind convergence
         Q = self._Q_boosted if time - self.start_time < self.wind_boost_seconds else self.Q
@@ -574,27 +622,8 @@ class AirdataEkfDetector:
             omega_p, variance = self._pusher_speed(omega_p, float(s[19]), skew)
             if variance is not None:
                 R[3, 3] = variance                           # a_x back in use, on the current's speed
-        hover = model.hover_terms(omega_h)
-
-        def force(u, v, w):
-            return model.specific_force_floats(u, v, w, omega_p, hover, skew)
-
-        def h(x):                                            # eq. (3) and (31)-(33)
-            return np.concatenate([Rot.dot(x[:3]) + x[3:], force(*x[:3].tolist())])
-
-        def H(x):                                   # eq. (50): analytic for GNSS, central differences for the model
-            u, v, w = x[:3].tolist()
-            # x[:3] +- 1e-4 e_j with the array sums' zeros: + 0.0 (which turns -0.0 into 0.0) and - 0.0
-            columns = [[(p - m) / 2e-4 for p, m in zip(force(*plus), force(*minus))] for plus, minus in (
-                ((u + 1e-4, v + 0.0, w + 0.0), (u - 1e-4, v, w)), ((u + 0.0, v + 1e-4, w + 0.0), (u, v - 1e-4, w)),
-                ((u + 0.0, v + 0.0, w + 1e-4), (u, v, w - 1e-4)))]
-            (r0, r1, r2), (c0, c1, c2) = Rot.tolist(), columns
-            return np.array([r0 + [1.0, 0.0, 0.0], r1 + [0.0, 1.0, 0.0], r2 + [0.0, 0.0, 1.0],
-                             [c0[0], c1[0], c2[0], 0.0, 0.0, 0.0], [c0[1], c1[1], c2[1], 0.0, 0.0, 0.0],
-                             [c0[2], c1[2], c2[2], 0.0, 0.0, 0.0]])
-
-        z = np.concatenate([v_gnd, a])
-        self.x, self.P, self.innovation, _ = ekf_step(self.x, self.P, self.dt, (a, omega, Rot), z, h, H, Q, R)
+        self.x, self.P, self.innovation = ekf_cycle(s, self.x, self.P, self.dt, Rot, Q, R, model.aero, model.pusher,
+                                                    model.constants, omega_p)
 
     def _pusher_speed(self, reading: float, current: float, skew: float) -> tuple[float, float | None]:
         """The pusher speed the EKF uses and, once the RPM sensor is isolated, a_x's variance (see

@@ -85,15 +85,6 @@ class RotorSet:
         """Normalised commands in [0, 1] -> rotor speed set-points (linear between idle and max)."""
         return self.omega_min + command * (self.omega_max - self.omega_min)
 
-    def step(self, omega_cmd, dt: float) -> None:
-        """`advance_speeds`: `omega` and `omega_dot` are updated in place."""
-        advance_speeds(self.state, np.asarray(omega_cmd, dtype=float), dt, *self.gains(dt))
-
-    def advance(self, omega_cmd, dt: float):
-        """`step`, returning (omega, omega_dot) as lists of floats."""
-        self.step(omega_cmd, dt)
-        return self.omega.tolist(), self.omega_dot.tolist()
-
     def wrench(self, body_rates, air_velocity_body):
         """Force and moment on the body (FRD) from all rotors, as arrays (`rotor_loads`)."""
         loads = rotor_loads(self.state, self.geometry, self.c_t, self.c_q, self.drag_coefficient,

@@ -115,11 +115,7 @@ class QuadrotorSensors:
         self._count = 0
         self._held = np.zeros(6)         # position and velocity, sampled and held
 
-    rotor_angles = property(lambda self: self._phase, doc="the rotors' angles (rad), advanced in place")
-
-    def advance_rotor_phase(self, omega, dt: float) -> None:
-        """Integrate the rotor angles (called every physics step, so vibration is not aliased by substeps)."""
-        advance_phase(self._phase, np.asarray(omega, dtype=float), dt)
+    rotor_angles = property(lambda self: self._phase, doc="the rotors' angles (rad), in place (`advance_phase`)")
 
     def _next_noise_row(self) -> int:
         if self._row >= len(self._noise):
@@ -153,7 +149,8 @@ def _floats(values) -> tuple:
 
 @njit(cache=True)
 def advance_phase(phase, omega, dt):  # pragma: no cover (compiled)
-    """Rotor angles, in place: (phase + omega dt) mod 2 pi."""
+    """Rotor angles, in place: (phase + omega dt) mod 2 pi (every physics step, so vibration is not aliased by
+    substeps)."""
     for i in range(phase.size):
         phase[i] = (phase[i] + omega[i] * dt) % _TWO_PI
 
@@ -258,8 +255,7 @@ class QuadPlaneSensors:
         self._gnss = None
         self._count = 0
 
-    def advance_rotor_phase(self, omega: np.ndarray, dt: float) -> None:
-        self.base.advance_rotor_phase(omega, dt)
+    rotor_angles = property(lambda self: self.base.rotor_angles, doc="the hover rotors' angles (rad), in place")
 
     def read(self, position, velocity, quat, body_rates, specific_force, hover_omega, airspeed_x: float,
              skew: float, pusher_omega: float, pusher_current: float) -> dict:

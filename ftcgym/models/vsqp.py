@@ -38,9 +38,11 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from .checks import FINITE, NON_NEGATIVE, POSITIVE, Range
 from .constants import GRAVITY
+from .pyfloat import py_hypot
 from .quadrotor import named_params
 
 RPM = math.pi / 30.0   # rad/s per RPM
@@ -140,22 +142,10 @@ class VsqpParams:
         return self.wing_span ** 2 / self.wing_area
 
     def hover_rotor_geometry(self, skew: float) -> tuple:
-        """(positions, axes) of the 4 hover rotors as tuples of (x, y, z): plain floats, for speed.
-
-        Rotors 1 (right) and 3 (left) ride on arms perpendicular to the wing, so they swing from (0, +-l)
-        at skew 0 to (-+l, 0) at skew 90 deg (001 Sec. 3 Fig. 3.2). Each thrust axis is -z tilted by
-        `hover_tilt` toward the tangential direction whose yaw moment has the rotor's yaw sign (001 App. B:
-        M_z = f sin(beta) l adds to the drag torque).
-        """
-        s, c = math.sin(skew), math.cos(skew)
-        lf, lw, z = self.hover_fuselage_arm, self.hover_wing_arm, self.hover_rotor_height
-        positions = ((lf, 0.0, z), (-lw * s, lw * c, z), (-lf, 0.0, z), (lw * s, -lw * c, z))
-        st, ct = math.sin(self.hover_tilt), math.cos(self.hover_tilt)
-        axes = []
-        for (x, y, _), sign in zip(positions, self.hover_yaw_signs):
-            r = math.hypot(x, y)
-            axes.append((-y / r * st * sign, x / r * st * sign, -ct))   # tangential = z x radial
-        return positions, tuple(axes)
+        """(positions, axes) of the 4 hover rotors as tuples of (x, y, z): plain floats (`rotor_geometry`)."""
+        return rotor_geometry(math.sin(skew), math.cos(skew), float(self.hover_fuselage_arm),
+                              float(self.hover_wing_arm), float(self.hover_rotor_height), float(self.hover_tilt),
+                              tuple(map(float, self.hover_yaw_signs)))
 
     def hover_rotor_positions(self, skew: float) -> np.ndarray:
         """(4, 3) hub positions in body FRD, rotor order 0 front, 1 right, 2 rear, 3 left."""
@@ -164,6 +154,47 @@ class VsqpParams:
     def hover_thrust_axes(self, skew: float) -> np.ndarray:
         """(4, 3) unit thrust directions in body FRD (see `hover_rotor_geometry`)."""
         return np.array(self.hover_rotor_geometry(skew)[1])
+
+
+class ParamsCache:
+    """`build(params)` for a parameter set, built on first use and kept for the last `size` sets (the few in
+    use at once), looked up by identity (a parameter set is immutable)."""
+
+    def __init__(self, build, size: int = 8):
+        self.build, self.size, self._built = build, size, {}
+
+    def __call__(self, params):
+        entry = self._built.get(id(params))
+        if entry is None or entry[0] is not params:
+            if len(self._built) >= self.size:
+                del self._built[next(iter(self._built))]
+            entry = self._built[id(params)] = (params, self.build(params))
+        return entry[1]
+
+
+@njit(cache=True)
+def rotor_geometry(sin_skew, cos_skew, fuselage_arm, wing_arm, height, tilt, yaw_signs):  # pragma: no cover (compiled)
+    """(positions, axes) of the 4 hover rotors at the skew L of sine and cosine `sin_skew`, `cos_skew`.
+
+    Rotors 1 (right) and 3 (left) ride on arms perpendicular to the wing, so they swing from (0, +-l)
+    at skew 0 to (-+l, 0) at skew 90 deg (001 Sec. 3 Fig. 3.2). Each thrust axis is -z tilted by
+    `tilt` toward the tangential direction whose yaw moment has the rotor's yaw sign (001 App. B:
+    M_z = f sin(beta) l adds to the drag torque).
+    """
+    s, c, lf, lw, z = sin_skew, cos_skew, fuselage_arm, wing_arm, height
+    positions = ((lf, 0.0, z), (-lw * s, lw * c, z), (-lf, 0.0, z), (lw * s, -lw * c, z))
+    st, ct = math.sin(tilt), math.cos(tilt)
+    axes = (_thrust_axis(positions[0], yaw_signs[0], st, ct), _thrust_axis(positions[1], yaw_signs[1], st, ct),
+            _thrust_axis(positions[2], yaw_signs[2], st, ct), _thrust_axis(positions[3], yaw_signs[3], st, ct))
+    return positions, axes
+
+
+@njit(cache=True)
+def _thrust_axis(position, sign, sin_tilt, cos_tilt):  # pragma: no cover (compiled)
+    """-z tilted toward the tangential direction z x radial of the hub at `position`, times the yaw sign."""
+    x, y = position[0], position[1]
+    r = py_hypot(x, y)
+    return (-y / r * sin_tilt * sign, x / r * sin_tilt * sign, -cos_tilt)
 
 
 VSQP = VsqpParams(
