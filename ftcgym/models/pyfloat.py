@@ -22,8 +22,14 @@ import math
 from llvmlite import binding
 from numba import njit, types
 
-binding.add_symbol("ftcgym_libm_pow", ctypes.cast(ctypes.CDLL(ctypes.util.find_library("m")).pow,
-                                                  ctypes.c_void_p).value)
+
+def _c_pow_address() -> int:
+    """The address of the C library's pow, the one CPython links: libm on Linux and macOS, the UCRT on Windows."""
+    library = next(filter(None, map(ctypes.util.find_library, ("m", "ucrtbase", "c"))))
+    return ctypes.cast(ctypes.CDLL(library).pow, ctypes.c_void_p).value
+
+
+binding.add_symbol("ftcgym_libm_pow", _c_pow_address())
 #: the C library's pow(x, y), the function CPython's x ** y calls, under a name LLVM does not rewrite
 py_pow = types.ExternalFunction("ftcgym_libm_pow", types.float64(types.float64, types.float64))
 
