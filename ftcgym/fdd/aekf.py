@@ -40,6 +40,11 @@ Where ftcgym departs from or adapts the paper (also noted at the code):
   over an exponential window and scaled to unit variance; the statistic is the largest |z_j|, compared
   with T_0. Isolation: the rotor whose LOE estimate is largest above `isolation_threshold`.
 - The LOE estimates are not clipped to [0, 1]: clipping would bias them, and 002 values their unbiasedness.
+
+The per-sample arithmetic is compiled (numba: `_step` and the functions it calls, `kalman.predict` and `update`
+and geometry's rotation helpers among them) with the numpy operations of the plain-numpy filter it replaced, in the
+same order and array layouts: numba's `dot` and `solve` make the BLAS and LAPACK calls numpy's make, so the
+estimates keep their bits.
 """
 from __future__ import annotations
 
@@ -47,6 +52,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from ..models.constants import GRAVITY
 from ..models.geometry import euler_from_quat, rotation_from_euler, skew_matrix
@@ -60,6 +66,15 @@ N_X = 21
 POS, VEL, ETA, OMEGA, BIAS, LOE, DIST = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15),
                                          slice(15, 19), slice(19, 21))
 PSI = 8
+_GRAVITY = np.array((0.0, 0.0, GRAVITY))
+_NO_COMMAND = np.empty(0)
+_REJECTED = -1.0                        # `_step`'s answer to a non-finite reading or command (the statistic is >= 0)
+#: the constants of f(x, u) in the one array the compiled functions read (`AugmentedEkfDetector._model`): mass,
+#: thrust coefficient c_T, rotor drag coefficient k_d, propeller inertia I_p, linear body drag (FRD) and rotational
+#: drag, inertia J, yaw signs s, the moment matrix A (3 x 4, row-major) and -A / J
+MASS, C_T, K_D, I_P = range(4)
+BODY_DRAG, ROTATIONAL_DRAG, INERTIA, SIGNS, MOMENTS, MOMENTS_OVER_J = (
+    slice(4, 7), slice(7, 10), slice(10, 13), slice(13, 17), slice(17, 29), slice(29, 41))
 
 
 @dataclass(frozen=True)
@@ -106,7 +121,7 @@ class AekfSettings:
     r_sigma: dict | None = None        # overrides of R_SIGMA entries
 
 class AugmentedEkfDetector:
-    """002's augmented EKF (see the module docstring), fed one sample at a time; plain numpy.
+    """002's augmented EKF (see the module docstring), fed one sample at a time; the arithmetic compiled.
 
     model:               the vehicle's nominal numbers (`QuadrotorModel`, or use `from_params`)
     dt:                  the update interval (s) the model is discretised at: one `update` per dt
@@ -153,7 +168,6 @@ class AugmentedEkfDetector:
         self.H_full = np.zeros((12, N_X))
         for row, block in ((0, ETA), (3, OMEGA), (3, BIAS), (6, POS), (9, VEL)):
             self.H_full[row:row + 3, block] = np.eye(3)
-        self._I = np.eye(N_X)
         self.reset()
 
     @classmethod
@@ -163,21 +177,12 @@ class AugmentedEkfDetector:
 
     def _use_model(self, m: QuadrotorModel, model_error: float) -> None:
         """Constants of f(x, u), with c_T scaled by (1 + model_error)."""
-        r = np.asarray(m.rotor_positions, dtype=float)
-        self.c_T = m.thrust_coefficient * (1.0 + model_error)
-        self.J = np.asarray(m.inertia, dtype=float)
-        self.s = np.asarray(m.yaw_signs, dtype=float)
+        c_T = m.thrust_coefficient * (1.0 + model_error)
+        J, s = np.asarray(m.inertia, dtype=float), np.asarray(m.yaw_signs, dtype=float)
         # Moment per unit effective Omega^2 (000 eq. 4; yaw row 004 eq. 7): columns are rotors.
-        self.A = rotor_wrench_matrix(r, self.c_T, m.torque_coefficient, self.s)[1:]
-        self.I_p, self.k_d = m.propeller_inertia, m.rotor_drag_coefficient
-        self.mass, self.d_body = m.mass, tuple(m.body_drag)
-        self.J_tuple, self.d_rot_tuple = tuple(m.inertia), tuple(m.rotational_drag)
-        self._A_over_J = -self.A / self.J[:, None]
-        self._gravity = np.array((0.0, 0.0, GRAVITY))
-        self._zeros9 = np.zeros(9)
-        self._F0 = np.zeros((N_X, N_X))
-        self._F0[POS, VEL] = np.eye(3)
-        self._F0[VEL, DIST] = np.eye(3)[:, :2]
+        A = rotor_wrench_matrix(np.asarray(m.rotor_positions, dtype=float), c_T, m.torque_coefficient, s)[1:]
+        self._model = np.concatenate(((m.mass, c_T, m.rotor_drag_coefficient, m.propeller_inertia), m.body_drag,
+                                      m.rotational_drag, J, s, A.ravel(), (-A / J[:, None]).ravel()))
 
     # ------------------------------------------------------------------------------------ protocol
     def reset(self) -> None:
@@ -185,138 +190,63 @@ class AugmentedEkfDetector:
         self.P = self._P0.copy()
         self._latch = AlarmLatch()
         self._start = None
-        self._Omega = None
-        self._held = None
+        self._Omega = np.zeros(4)       # the previous sample's rotor speeds
+        self._held = np.zeros(6)        # and its (held) position and velocity
         self._acc = np.zeros(12)       # accumulated normalised innovation per channel (eq. 42)
         self._acc_w = np.ones(12)      # sum of squared window weights: var of _acc if the model fits
         self.z = np.zeros(12)
         self.statistic = 0.0
 
     def update(self, readings: dict, time: float, command: np.ndarray | None = None) -> None:
-        """One sample: predict from the previous one (eq. 6-12), correct with this one (eq. 13-18)."""
-        z = _finite(readings, self.KEYS, command)
-        if not math.isfinite(time):
-            raise ValueError(f"time: must be finite, got {time!r}")
-        Omega = z["rotor_speed"]
-        held = z["position"].tobytes() + z["velocity"].tobytes()
-        if self._start is None:
-            self._initialise(z, time)
-        else:
-            self.predict(Omega)
-            fresh = held != self._held                       # sample-and-hold: a new sample, or the old one
-            self.correct(_measurement(z, fresh))
-            self._detect(time)
-        self._Omega, self._held = Omega, held
+        """One sample: predict from the previous one (eq. 6-12), correct with this one (eq. 13-18), detect (eq. 41-42),
+        compiled (`_step`); the first sample initialises. A non-finite reading, command or time raises ValueError
+        naming it, with the state untouched."""
+        values = _floats(readings, self.KEYS)
+        command = _NO_COMMAND if command is None else np.asarray(command, np.float64)
+        if self._start is None or not math.isfinite(time):
+            _check_finite(values, self.KEYS, command, time)  # raises for a non-finite time: only the first gets on
+            self._initialise(*values, time)
+            return
+        statistic = _step(self.x, self.P, self.Q, self.H_full, self.R_full, self._model, self.dt, self._forget,
+                          self._Omega, self._held, self._acc, self._acc_w, self.z, *values, command)
+        if statistic == _REJECTED:
+            _check_finite(values, self.KEYS, command, time)
+        self._detect(statistic, time)
 
     def outputs(self) -> dict:
-        return {"loe": self.x[LOE].copy(), "loe_std": np.sqrt(np.diag(self.P)[LOE]),
+        return {"loe": self.x[LOE].copy(), "loe_std": np.sqrt(self.P.diagonal()[LOE]),
                 "innovation": np.array([self.statistic])}
 
     def status(self) -> dict:
         return {**self._latch.status(), "loe": self.x[LOE].tolist()}
 
     # ------------------------------------------------------------------------------------ filter
-    def _initialise(self, z: dict, time: float) -> None:
+    def _initialise(self, position, velocity, attitude, gyro, Omega, time: float) -> None:
         """x(0|0) from the first sample (002 assumes all states measured, eq. 28-36); no faults."""
         self._start = float(time)
-        self.x[POS], self.x[VEL] = z["position"], z["velocity"]
-        self.x[ETA] = euler_from_quat(z["attitude"])
-        self.x[OMEGA] = z["gyro"]
+        self.x[POS], self.x[VEL] = position, velocity
+        self.x[ETA] = euler_from_quat(attitude)
+        self.x[OMEGA] = gyro
+        self._Omega[:], self._held[:3], self._held[3:] = Omega, position, velocity
 
     def predict(self, Omega: np.ndarray) -> None:
-        """Eq. (6)-(12): x(k+1|k) by a second-order Taylor step, P(k+1|k) = Phi P Phi^T + Q_d."""
-        dt = self.dt
-        f, F = self.dynamics(self.x, Omega, (Omega - self._Omega) / dt)   # F at x(k|k), eq. (9)
-        Fdt = F * dt
-        self.x = self.x + dt * f + (0.5 * dt) * Fdt.dot(f)   # eq. (6)
-        self.x[PSI] = _wrap(self.x[PSI])
-        Phi = self._I + Fdt + 0.5 * Fdt.dot(Fdt)             # eq. (8), to second order
-        self.P = kalman.predict(self.P, self.Q, Phi)         # eq. (7)
+        """Eq. (6)-(12) from the previous sample's rotor speeds `_Omega`, in place on x and P (`_predict`)."""
+        _predict(self.x, self.P, self.Q, np.asarray(Omega, dtype=np.float64), self._Omega, self.dt, self._model)
 
     def correct(self, y: np.ndarray) -> None:
-        """Eq. (13)-(18) for y = H x + v: [eta, gyro] or [eta, gyro, p, v] (H constant, so eq. 15 is exact)."""
-        m = y.size
-        H, R = self.H_full[:m], self.R_full[:m, :m]
-        gamma = y - H.dot(self.x)                            # eq. (17)
-        gamma[2] = _wrap(gamma[2])                           # yaw innovation across +-pi
-        # eq. (13)-(16), and eq. (18): the Joseph form
-        self.x, self.P, S, _ = kalman.update(self.x, self.P, gamma, H, R)
-        self.x[PSI] = _wrap(self.x[PSI])
-        self.gamma, self.S = gamma, S
+        """Eq. (13)-(18) for y = [eta, gyro] or [eta, gyro, p, v], in place on x and P (`_correct`)."""
+        _correct(self.x, self.P, np.asarray(y, dtype=np.float64), self.H_full, self.R_full)
 
     def dynamics(self, x: np.ndarray, Omega: np.ndarray, Omega_dot: np.ndarray):
-        """f(x, u) of eq. (43) and its Jacobian F (eq. 9); inputs the rotor speeds Omega and their rate."""
-        Omega2 = Omega * Omega
-        k = 1.0 - x[LOE]                                      # effectiveness: eq. (40)'s (1 - l_i) factor
-        phi, theta, psi, p, q, r = x[6:12].tolist()
-        v_dot, dv_dv, dv_deta, dv_dl = self._translation(x[VEL], phi, theta, psi, k, Omega, Omega2)
-        eta_dot, deta_deta, W = _euler_kinematics(phi, theta, p, q, r)
-        w_dot, dw_dw = self._rotational(p, q, r, k * Omega2, Omega, Omega_dot)
-        v_dot[:2] += x[DIST]
-        f = np.concatenate((x[VEL], v_dot, eta_dot, w_dot, self._zeros9))  # biases, LOE: eq. (43) random walks
-        F = self._F0.copy()                                   # dp_dot/dv = I
-        F[VEL, VEL], F[VEL, ETA], F[VEL, LOE] = dv_dv, dv_deta, dv_dl
-        F[ETA, ETA], F[ETA, OMEGA] = deta_deta, W
-        F[OMEGA, OMEGA] = dw_dw
-        F[OMEGA, LOE] = self._A_over_J * Omega2              # dM/dl_i = -A_i Omega_i^2
-        return f, F
-
-    def _translation(self, v, phi, theta, psi, k, Omega, Omega2):
-        """Eq. (22)-(24) in NED: m v_dot = m g e3 + R F_b; F_b = thrust and linear body and rotor drag.
-
-        Plain floats and whole blocks: numpy's per-call cost, not arithmetic, dominates at this size.
-        """
-        mass = self.mass
-        R = rotation_from_euler(phi, theta, psi)
-        a_b = v.dot(R)                                        # R^T v, body airspeed (no wind is known)
-        rotor_drag = self.k_d * float(k.dot(Omega))
-        c = -np.array((self.d_body[0] + rotor_drag, self.d_body[1] + rotor_drag, self.d_body[2]))
-        F_b = c * a_b
-        F_b[2] -= self.c_T * float(k.dot(Omega2))
-        RF = R.dot(F_b)
-        RCRt = (R * c).dot(R.T)
-        # d(R u)/d eta_j = n_j x (R u) with n_phi = R e1, n_theta = Rz e2, n_psi = e3 (ZYX), so the eta
-        # columns are n_j x RF + RCR^T (v x n_j) = (RCR^T [v]x - [RF]x) n_j.
-        N = np.array(((R[0, 0], -math.sin(psi), 0.0), (R[1, 0], math.cos(psi), 0.0), (R[2, 0], 0.0, 1.0)))
-        dv_deta = (RCRt.dot(skew_matrix(v)) - skew_matrix(RF)).dot(N) / mass
-        dFb_dl = np.array((self.k_d * a_b[0] * Omega, self.k_d * a_b[1] * Omega, self.c_T * Omega2))
-        return RF / mass + self._gravity, RCRt / mass, dv_deta, R.dot(dFb_dl) / mass
-
-    def _rotational(self, p, q, r, kOmega2, Omega, Omega_dot):
-        """Eq. (25)-(27) as Euler's equation J omega_dot = M - omega x J omega, and d(omega_dot)/d omega.
-
-        M: rotor thrust and drag moments A (k Omega^2), propeller gyroscopic moment -omega x (0, 0, h),
-        the reaction to the propellers' spin-up, linear damping: the simulator's terms (rotors.py).
-        """
-        Jx, Jy, Jz = self.J_tuple
-        dx, dy, dz = self.d_rot_tuple
-        h = -self.I_p * float(self.s.dot(Omega))              # propellers' angular momentum along body z
-        M = self.A.dot(kOmega2)
-        M[0] += -dx * p - q * h - q * r * (Jz - Jy)
-        M[1] += -dy * q + p * h - p * r * (Jx - Jz)
-        M[2] += -dz * r + self.I_p * float(self.s.dot(Omega_dot)) - p * q * (Jy - Jx)
-        dw_dw = np.array(((-dx / Jx, (-h - r * (Jz - Jy)) / Jx, -q * (Jz - Jy) / Jx),
-                          ((h - r * (Jx - Jz)) / Jy, -dy / Jy, -p * (Jx - Jz) / Jy),
-                          (-q * (Jy - Jx) / Jz, -p * (Jy - Jx) / Jz, -dz / Jz)))
-        return M / self.J, dw_dw
+        """f(x, u) of eq. (43) and its Jacobian F (eq. 9) (`_dynamics`)."""
+        return _dynamics(np.asarray(x, dtype=np.float64), np.asarray(Omega, dtype=np.float64),
+                         np.asarray(Omega_dot, dtype=np.float64), self._model)
 
     # ------------------------------------------------------------------------------------ detection
-    def _detect(self, time: float) -> None:
-        """Eq. (41)-(42) with an accumulation window: alarm when a channel's windowed innovation >= T_0 sigma.
-
-        Each channel's normalised innovation gamma_j / sqrt(S_jj) is summed with exponential forgetting;
-        divided by the root of the summed squared weights it is N(0, 1) while the model fits, and a fault
-        that the LOE random walk has not yet absorbed drives it away from zero.
-        """
-        m = self.gamma.size                                    # channels measured now (position: 100 Hz)
-        lam = self._forget                                     # the window decays in time, not in samples
-        self._acc *= lam
-        self._acc[:m] += self.gamma / np.sqrt(self.S.diagonal())
-        self._acc_w *= lam * lam
-        self._acc_w[:m] += 1.0
-        self.z = self._acc / np.sqrt(self._acc_w)
-        self.statistic = float(np.abs(self.z).max())
-        if self.statistic >= self.threshold and time - self._start >= self.warmup:
+    def _detect(self, statistic: float, time: float) -> None:
+        """Eq. (41)-(42): alarm when a channel's windowed innovation (`_accumulate`) reaches T_0 sigma."""
+        self.statistic = statistic
+        if statistic >= self.threshold and time - self._start >= self.warmup:
             self._latch.trigger(time, self._isolate())
         elif self._latch.alarm and self._latch.isolated is None:
             self._latch.isolated = self._isolate()             # the first isolation after the alarm is kept
@@ -334,21 +264,24 @@ def aekf_wrapper(env, **kwargs) -> DetectorWrapper:
 
 
 # ---------------------------------------------------------------------------------------- helpers
-def _finite(readings: dict, keys, command) -> dict:
-    """The readings as float arrays; a missing or non-finite one raises ValueError naming its key."""
-    missing = [key for key in keys if key not in readings]
-    if missing:
-        raise ValueError(f"readings: missing {missing} (the aekf detector needs {list(keys)})")
-    z = {key: np.asarray(readings[key], dtype=np.float64) for key in keys}
-    # one check (a sum is finite only if every term is); the key is looked for only on failure
-    if not math.isfinite(sum(np.concatenate(list(z.values())).tolist())):
-        bad = next((key for key in keys if not np.isfinite(z[key]).all()), None)
-        if bad is not None:                                   # else only the sum overflowed
-            raise ValueError(f"readings[{bad!r}]: must be finite (no NaN or inf), got {z[bad].tolist()}")
-    if (command is not None and not math.isfinite(sum(np.asarray(command, dtype=np.float64).ravel().tolist()))
-            and not np.isfinite(np.asarray(command, dtype=np.float64)).all()):
-        raise ValueError(f"command: must be finite (no NaN or inf), got {np.asarray(command).tolist()}")
-    return z
+def _floats(readings: dict, keys) -> list:
+    """The readings of `keys` as float arrays; a missing one raises ValueError."""
+    try:
+        return [np.asarray(readings[key], np.float64) for key in keys]
+    except KeyError:
+        missing = [key for key in keys if key not in readings]
+        raise ValueError(f"readings: missing {missing} (the aekf detector needs {list(keys)})") from None
+
+
+def _check_finite(values: list, keys, command: np.ndarray, time: float) -> None:
+    """ValueError naming the first non-finite reading, else the command, else the time."""
+    for key, value in zip(keys, values):
+        if not np.isfinite(value).all():
+            raise ValueError(f"readings[{key!r}]: must be finite (no NaN or inf), got {value.tolist()}")
+    if not np.isfinite(command).all():
+        raise ValueError(f"command: must be finite (no NaN or inf), got {command.tolist()}")
+    if not math.isfinite(time):
+        raise ValueError(f"time: must be finite, got {time!r}")
 
 
 def _override(defaults: dict, overrides: dict | None, name: str) -> dict:
@@ -363,27 +296,171 @@ def _blocks(pos, vel, eta, omega, bias, loe, dist) -> np.ndarray:
     return np.repeat([pos, vel, eta, omega, bias, loe, dist], [3, 3, 3, 3, 3, 4, 2]).astype(float)
 
 
-def _measurement(z: dict, fresh: bool) -> np.ndarray:
-    parts = [euler_from_quat(z["attitude"]), z["gyro"]]
+# ---------------------------------------------------------------------------------------- compiled
+@njit(cache=True)
+def _step(x, P, Q, H_full, R_full, c, dt, forget, Omega_prev, held, acc, acc_w, z, position, velocity, attitude,
+          gyro, Omega, command):  # pragma: no cover (compiled)
+    """One sample after the first, in place: predict (eq. 6-12) from the previous sample's speeds `Omega_prev`,
+    correct (eq. 13-18) with the measurement, accumulate the innovation (eq. 42) into acc, acc_w, z; keeps this
+    sample's speeds and held position and velocity. Returns the statistic max_j |z_j|, or `_REJECTED` (nothing
+    changed) if a reading or the command is not finite."""
+    if not (_finite(position) and _finite(velocity) and _finite(attitude) and _finite(gyro) and _finite(Omega)
+            and _finite(command)):
+        return _REJECTED
+    _predict(x, P, Q, Omega, Omega_prev, dt, c)
+    fresh = _changed(position, held[:3]) or _changed(velocity, held[3:])   # sample-and-hold: a new sample?
+    gamma, S = _correct(x, P, _measurement(position, velocity, attitude, gyro, fresh), H_full, R_full)
+    Omega_prev[:] = Omega
+    held[:3], held[3:] = position, velocity
+    return _accumulate(acc, acc_w, z, gamma, S, forget)
+
+
+@njit(cache=True)
+def _finite(a):  # pragma: no cover (compiled)
+    finite = True
+    for v in a.flat:
+        finite &= math.isfinite(v)
+    return finite
+
+
+@njit(cache=True)
+def _changed(new, old):  # pragma: no cover (compiled)
+    """Whether the finite values `new` differ from `old` in their bits (0.0 and -0.0 differ)."""
+    changed = False
+    for i in range(new.size):
+        changed |= new[i] != old[i] or math.copysign(1.0, new[i]) != math.copysign(1.0, old[i])
+    return changed
+
+
+@njit(cache=True)
+def _measurement(position, velocity, attitude, gyro, fresh):  # pragma: no cover (compiled)
+    """y of eq. (28)-(36) plus the gyro, ordered so that a step without fresh position/velocity is a prefix:
+    [eta (3), gyro (3) | p (3), v (3)]."""
+    y = np.empty(12 if fresh else 6)
+    y[:3], y[3:6] = euler_from_quat(attitude), gyro
     if fresh:
-        parts += [z["position"], z["velocity"]]
-    return np.concatenate(parts)
+        y[6:9], y[9:] = position, velocity
+    return y
 
 
+@njit(cache=True)
+def _predict(x, P, Q, Omega, Omega_prev, dt, c):  # pragma: no cover (compiled)
+    """Eq. (6)-(12), in place: x(k+1|k) by a second-order Taylor step, P(k+1|k) = Phi P Phi^T + Q_d."""
+    f, F = _dynamics(x, Omega, (Omega - Omega_prev) / dt, c)   # F at x(k|k), eq. (9)
+    Fdt = F * dt
+    x[:] = x + dt * f + (0.5 * dt) * np.dot(Fdt, f)           # eq. (6)
+    x[PSI] = _wrap(x[PSI])
+    Phi = np.eye(N_X) + Fdt + 0.5 * np.dot(Fdt, Fdt)      # eq. (8), to second order
+    P[:] = kalman.predict(P, Q, Phi)                          # eq. (7)
 
 
-def _euler_kinematics(phi: float, theta: float, p: float, q: float, r: float):
+@njit(cache=True)
+def _correct(x, P, y, H_full, R_full):  # pragma: no cover (compiled)
+    """Eq. (13)-(18) for y = H x + v (H constant, so eq. 15 is exact), in place; returns the innovation gamma
+    (eq. 17) and its covariance S."""
+    m = y.size
+    H, R = H_full[:m], np.ascontiguousarray(R_full[:m, :m])
+    gamma = y - np.dot(H, x)                                  # eq. (17)
+    gamma[2] = _wrap(gamma[2])                                # yaw innovation across +-pi
+    # eq. (13)-(16), and eq. (18): the Joseph form
+    x_new, P_new, S, _ = kalman.update(x, P, gamma, H, R)
+    x[:], P[:] = x_new, P_new
+    x[PSI] = _wrap(x[PSI])
+    return gamma, S
+
+
+@njit(cache=True)
+def _accumulate(acc, acc_w, z, gamma, S, forget):  # pragma: no cover (compiled)
+    """Eq. (42) with an accumulation window, in place; returns the statistic max_j |z_j|.
+
+    Each channel's normalised innovation gamma_j / sqrt(S_jj) is summed with exponential forgetting (the window
+    decays in time, not in samples); divided by the root of the summed squared weights it is N(0, 1) while the
+    model fits, and a fault that the LOE random walk has not yet absorbed drives it away from zero. Channels
+    not measured now (position, velocity: 100 Hz) only decay."""
+    decay = forget * forget
+    for j in range(acc.size):
+        acc[j] *= forget
+        acc_w[j] *= decay
+        if j < gamma.size:
+            acc[j] += gamma[j] / math.sqrt(S[j, j])
+            acc_w[j] += 1.0
+        z[j] = acc[j] / math.sqrt(acc_w[j])
+    return np.abs(z).max()
+
+
+@njit(cache=True)
+def _dynamics(x, Omega, Omega_dot, c):  # pragma: no cover (compiled)
+    """f(x, u) of eq. (43) and its Jacobian F (eq. 9); inputs the rotor speeds Omega and their rate. The biases,
+    the LOE and d are random walks (eq. 43): their rows are zero."""
+    f, F = np.zeros(N_X), np.zeros((N_X, N_X))
+    Omega2 = Omega * Omega
+    k = 1.0 - x[LOE]                                          # effectiveness: eq. (40)'s (1 - l_i) factor
+    phi, theta, psi, p, q, r = x[6], x[7], x[8], x[9], x[10], x[11]
+    f[POS], F[POS, VEL] = x[VEL], np.eye(3)
+    f[VEL], F[VEL, VEL], F[VEL, ETA], F[VEL, LOE] = _translation(x[VEL], phi, theta, psi, k, Omega, Omega2, c)
+    f[VEL][:2] += x[DIST]
+    F[VEL, DIST] = np.eye(3, 2)
+    f[ETA], F[ETA, ETA], F[ETA, OMEGA] = _euler_kinematics(phi, theta, p, q, r)
+    f[OMEGA], F[OMEGA, OMEGA] = _rotational(p, q, r, k * Omega2, Omega, Omega_dot, c)
+    F[OMEGA, LOE] = c[MOMENTS_OVER_J].reshape(3, 4) * Omega2   # dM/dl_i = -A_i Omega_i^2
+    return f, F
+
+
+@njit(cache=True)
+def _translation(v, phi, theta, psi, k, Omega, Omega2, c):  # pragma: no cover (compiled)
+    """Eq. (22)-(24) in NED: m v_dot = m g e3 + R F_b; F_b = thrust and linear body and rotor drag.
+    Returns v_dot and its derivatives by v, eta and l."""
+    R = rotation_from_euler(phi, theta, psi)
+    mass, c_T, k_d, d = c[MASS], c[C_T], c[K_D], c[BODY_DRAG]
+    a_b = np.dot(v, R)                                        # R^T v, body airspeed (no wind is known)
+    rotor_drag = k_d * np.dot(k, Omega)
+    drag = -np.array((d[0] + rotor_drag, d[1] + rotor_drag, d[2]))
+    F_b = drag * a_b
+    F_b[2] -= c_T * np.dot(k, Omega2)
+    RF = np.dot(R, F_b)
+    RCRt = np.dot(R * drag, R.T)
+    # d(R u)/d eta_j = n_j x (R u) with n_phi = R e1, n_theta = Rz e2, n_psi = e3 (ZYX), so the eta
+    # columns are n_j x RF + RCR^T (v x n_j) = (RCR^T [v]x - [RF]x) n_j.
+    N = np.array(((R[0, 0], -math.sin(psi), 0.0), (R[1, 0], math.cos(psi), 0.0), (R[2, 0], 0.0, 1.0)))
+    dv_deta = np.dot(np.dot(RCRt, skew_matrix(v)) - skew_matrix(RF), N) / mass
+    dFb_dl = np.vstack((k_d * a_b[0] * Omega, k_d * a_b[1] * Omega, c_T * Omega2))
+    return RF / mass + _GRAVITY, RCRt / mass, dv_deta, np.dot(R, dFb_dl) / mass
+
+
+@njit(cache=True)
+def _rotational(p, q, r, kOmega2, Omega, Omega_dot, c):  # pragma: no cover (compiled)
+    """Eq. (25)-(27) as Euler's equation J omega_dot = M - omega x J omega, and d(omega_dot)/d omega.
+
+    M: rotor thrust and drag moments A (k Omega^2), propeller gyroscopic moment -omega x (0, 0, h),
+    the reaction to the propellers' spin-up, linear damping: the simulator's terms (rotors.py).
+    """
+    J, I_p, s = c[INERTIA], c[I_P], c[SIGNS]
+    Jx, Jy, Jz = J
+    dx, dy, dz = c[ROTATIONAL_DRAG]
+    h = -I_p * np.dot(s, Omega)                               # propellers' angular momentum along body z
+    M = np.dot(c[MOMENTS].reshape(3, 4), kOmega2)
+    M[0] += -dx * p - q * h - q * r * (Jz - Jy)
+    M[1] += -dy * q + p * h - p * r * (Jx - Jz)
+    M[2] += -dz * r + I_p * np.dot(s, Omega_dot) - p * q * (Jy - Jx)
+    dw_dw = np.array(((-dx / Jx, (-h - r * (Jz - Jy)) / Jx, -q * (Jz - Jy) / Jx),
+                      ((h - r * (Jx - Jz)) / Jy, -dy / Jy, -p * (Jx - Jz) / Jy),
+                      (-q * (Jy - Jx) / Jz, -p * (Jy - Jx) / Jz, -dz / Jz)))
+    return M / J, dw_dw
+
+
+@njit(cache=True)
+def _euler_kinematics(phi, theta, p, q, r):  # pragma: no cover (compiled)
     """eta_dot = W omega, d(eta_dot)/d eta and W (ZYX; singular at theta = +-90 deg)."""
     cf, sf, ct, tt = math.cos(phi), math.sin(phi), math.cos(theta), math.tan(theta)
     a, b = q * sf + r * cf, q * cf - r * sf
-    eta_dot = np.array([p + a * tt, b, a / ct])
-    d_eta = np.array([[b * tt, a / (ct * ct), 0.0],
-                      [-a, 0.0, 0.0],
-                      [b / ct, a * tt / ct, 0.0]])
-    W = np.array([[1.0, sf * tt, cf * tt], [0.0, cf, -sf], [0.0, sf / ct, cf / ct]])
+    eta_dot = np.array((p + a * tt, b, a / ct))
+    d_eta = np.array(((b * tt, a / (ct * ct), 0.0),
+                      (-a, 0.0, 0.0),
+                      (b / ct, a * tt / ct, 0.0)))
+    W = np.array(((1.0, sf * tt, cf * tt), (0.0, cf, -sf), (0.0, sf / ct, cf / ct)))
     return eta_dot, d_eta, W
 
 
-
-def _wrap(angle: float) -> float:
+@njit(cache=True)
+def _wrap(angle):  # pragma: no cover (compiled)
     return (angle + math.pi) % (2 * math.pi) - math.pi

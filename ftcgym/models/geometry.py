@@ -2,12 +2,16 @@
 
 Quaternions are (x, y, z, w), scalar last, as in PyBullet and scipy; matrices rotate body vectors into the
 world. Euler angles are ZYX (yaw, pitch, roll), as in the papers: R = Rz(psi) Ry(theta) Rx(phi).
+
+Functions marked `register_jitable` run as plain numpy when called from Python and are compiled into the numba
+code that calls them (the aekf detector's step), with the same bits.
 """
 from __future__ import annotations
 
 import math
 
 import numpy as np
+from numba.extending import register_jitable
 
 
 def cross3(a, b) -> tuple:
@@ -20,9 +24,10 @@ def cross(a, b) -> np.ndarray:
     return np.array(cross3(a, b))
 
 
+@register_jitable
 def skew_matrix(a) -> np.ndarray:
     """[a]x, the matrix with [a]x b = a x b."""
-    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+    return np.array(((0.0, -a[2], a[1]), (a[2], 0.0, -a[0]), (-a[1], a[0], 0.0)))
 
 
 def rotation_matrix(q) -> np.ndarray:
@@ -35,13 +40,14 @@ def rotation_matrix(q) -> np.ndarray:
     ])
 
 
+@register_jitable
 def rotation_from_euler(phi: float, theta: float, psi: float) -> np.ndarray:
     """Body->world rotation Rz(psi) Ry(theta) Rx(phi) of ZYX Euler angles."""
     cf, sf, ct, st, cp, sp = (math.cos(phi), math.sin(phi), math.cos(theta), math.sin(theta),
                               math.cos(psi), math.sin(psi))
-    return np.array([[ct * cp, sf * st * cp - cf * sp, cf * st * cp + sf * sp],
-                     [ct * sp, sf * st * sp + cf * cp, cf * st * sp - sf * cp],
-                     [-st, sf * ct, cf * ct]])
+    return np.array(((ct * cp, sf * st * cp - cf * sp, cf * st * cp + sf * sp),
+                     (ct * sp, sf * st * sp + cf * cp, cf * st * sp - sf * cp),
+                     (-st, sf * ct, cf * ct)))
 
 
 def quat_from_euler(roll: float, pitch: float, yaw: float) -> np.ndarray:
@@ -57,9 +63,10 @@ def quat_from_euler(roll: float, pitch: float, yaw: float) -> np.ndarray:
     ])
 
 
+@register_jitable
 def euler_from_quat(q) -> np.ndarray:
     """ZYX Euler angles (roll, pitch, yaw) of a quaternion (x, y, z, w); pitch is clipped to +-90 deg."""
     x, y, z, w = q
-    return np.array([math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y)),
+    return np.array((math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y)),
                      math.asin(min(max(2 * (w * y - z * x), -1.0), 1.0)),
-                     math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))])
+                     math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))))
