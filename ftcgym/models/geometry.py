@@ -1,13 +1,16 @@
-"""Rotation math shared by the simulator, the detectors and the controllers (numpy only, no simulator).
+"""Rotation math shared by the simulator, the detectors and the controllers (numpy and numba, no simulator).
 
 Quaternions are (x, y, z, w), scalar last, as in PyBullet and scipy; matrices rotate body vectors into the
 world. Euler angles are ZYX (yaw, pitch, roll), as in the papers: R = Rz(psi) Ry(theta) Rx(phi).
+The `*_compiled` forms are the same functions compiled with numba, for compiled kernels (the controllers'
+steps): the same source, elementwise arithmetic only, so the same bits.
 """
 from __future__ import annotations
 
 import math
 
 import numpy as np
+from numba import njit
 
 
 def cross3(a, b) -> tuple:
@@ -63,3 +66,7 @@ def euler_from_quat(q) -> np.ndarray:
     return np.array([math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y)),
                      math.asin(min(max(2 * (w * y - z * x), -1.0), 1.0)),
                      math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))])
+
+
+cross3_compiled = njit(cache=True)(cross3)
+rotation_matrix_compiled = njit(cache=True)(rotation_matrix)
