@@ -70,3 +70,15 @@ def euler_from_quat(q) -> np.ndarray:
 
 cross3_compiled = njit(cache=True)(cross3)
 rotation_matrix_compiled = njit(cache=True)(rotation_matrix)
+
+
+@njit(cache=True)
+def blas_dot(a, b):  # pragma: no cover (compiled)
+    """a . b of two vectors (tuples or arrays) as numpy's `a @ b` on float64 arrays: BLAS's ddot, whose
+    pairings (and fused multiply-adds, where its kernel has them) a plain Python sum need not reproduce."""
+    x, y = np.empty(len(a)), np.empty(len(b))
+    for i in range(len(a)):
+        x[i] = a[i]
+    for i in range(len(b)):
+        y[i] = b[i]
+    return np.dot(x, y)
