@@ -62,7 +62,8 @@ class NominalController:
     """Cascaded PID with model-based mixer; the `nominal` benchmark policy.
 
     The step is compiled (`_control_step`, numba): elementwise arithmetic in the order of the numpy version it
-    replaced, and the matrix and vector products BLAS's as numpy's, so trajectories keep their bits.
+    replaced, and the matrix and vector products BLAS's as numpy's, so trajectories keep their bits. The gains
+    are read when the controller is built.
     """
 
     def __init__(self, params: QuadrotorParams, agent_hz: float, gains: ControllerGains | None = None):
