@@ -201,7 +201,7 @@ class QuadPlaneAutopilot:
     def _near_home(self, nav) -> bool:
         """Within 3 m of home (the take-off point at mission altitude) and slower than 1.5 m/s."""
         x, y, z = nav.position
-        offset = (x - 0.0, y - 0.0, z - -self.task.altitude)
+        offset = (x, y, z + self.task.altitude)
         return math.sqrt(blas_dot(offset, offset)) < 3.0 and math.sqrt(blas_dot(nav.velocity, nav.velocity)) < 1.5
 
     def _enter(self, phase: str) -> None:
