@@ -9,12 +9,14 @@ row c_Q s_i of 004 eq. 7) for squared rotor speeds.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 import numpy as np
+from numba import njit
 
 from ..models.constants import GRAVITY
-from ..models.geometry import cross, rotation_matrix
+from ..models.geometry import cross3_compiled, rotation_matrix_compiled
 from ..models.quadrotor import QuadrotorParams, rotor_wrench_matrix
 from .base import UP
 
@@ -49,99 +51,161 @@ def gains_for(params: QuadrotorParams) -> ControllerGains:
     return replace(ControllerGains(), **VEHICLE_GAINS.get(params.name, {}))
 
 
+#: rows of `NominalController._axis_gains`, per axis (x, y, z): the ControllerGains of the same names, the
+#: inertia and the rate integral's limit (rad/s^2)
+KP, KD, KI, KATT, KRATE, KRATE_I, MAX_RATE, INERTIA, RATE_INTEGRAL_LIMIT = range(9)
+#: entries of `NominalController._scalars`
+DT, MASS, INTEGRAL_LIMIT, MAX_HORIZONTAL, GYRO_ALPHA, W2_MIN, W2_MAX, OMEGA_MIN, OMEGA_MAX = range(9)
+
+
 class NominalController:
-    """Cascaded PID with model-based mixer; the `nominal` benchmark policy."""
+    """Cascaded PID with model-based mixer; the `nominal` benchmark policy.
+
+    The step is compiled (`_control_step`, numba): elementwise arithmetic in the order of the numpy version it
+    replaced, and the matrix and vector products BLAS's as numpy's, so trajectories keep their bits. The gains
+    are read when the controller is built.
+    """
 
     def __init__(self, params: QuadrotorParams, agent_hz: float, gains: ControllerGains | None = None):
         self.params = params
         self.gains = gains or gains_for(params)
         self.dt = 1.0 / agent_hz
         g = self.gains
-        self._kp, self._kd, self._ki = (np.asarray(x, dtype=float)
-                                        for x in (g.position, g.velocity, g.position_integral))
-        self._katt, self._krate, self._krate_i = (np.asarray(x, dtype=float)
-                                                  for x in (g.attitude, g.rate, g.rate_integral))
-        self._max_rate = np.asarray(g.max_rate, dtype=float)
-        self._max_horizontal = GRAVITY * np.tan(np.deg2rad(g.max_tilt_deg))
-        self._inertia = np.asarray(params.inertia, dtype=float)
-        self._gyro_alpha = 1.0 - np.exp(-2 * np.pi * g.gyro_cutoff_hz * self.dt)
         allocation = allocation_matrix(params)
         self._mixer_inverse = np.linalg.inv(allocation)
         # Largest torque about each axis with rotors between idle and max: the integral may use a share of it,
         # enough to trim out a partial loss of effectiveness (002 Sec. 5.2) without winding up.
         span = params.omega_max ** 2 - params.omega_min ** 2
         max_torque = 0.5 * np.abs(allocation[1:]).sum(axis=1) * span
-        self._alpha_integral_limit = g.rate_integral_share * max_torque / self._inertia
-        self._w2_min, self._w2_max = params.omega_min ** 2, params.omega_max ** 2
-        self.thrust_axis_reference = UP.copy()
+        inertia = np.asarray(params.inertia, dtype=float)
+        self._axis_gains = np.array([g.position, g.velocity, g.position_integral, g.attitude, g.rate,
+                                     g.rate_integral, g.max_rate, inertia,
+                                     g.rate_integral_share * max_torque / inertia], dtype=float)
+        self._scalars = np.array([self.dt, params.mass, g.integral_limit,
+                                  GRAVITY * np.tan(np.deg2rad(g.max_tilt_deg)),
+                                  1.0 - np.exp(-2 * np.pi * g.gyro_cutoff_hz * self.dt),
+                                  params.omega_min ** 2, params.omega_max ** 2, params.omega_min, params.omega_max])
         self.reset()
 
     def reset(self, obs: dict | None = None, info: dict | None = None) -> None:
         self._pos_integral = np.zeros(3)
         self._rate_integral = np.zeros(3)
-        self._gyro = None if obs is None else np.asarray(obs["gyro"], dtype=float).copy()
-        self.thrust_axis_reference = UP.copy()
+        self._gyro = None if obs is None else np.array(obs["gyro"], dtype=float)
+        self._thrust_axis = UP.copy()
+
+    @property
+    def thrust_axis_reference(self) -> np.ndarray:
+        """The thrust direction (NED unit vector) of the last step's command; straight up before the first."""
+        return self._thrust_axis.copy()
 
     def act(self, obs: dict, info: dict | None = None) -> np.ndarray:
-        R = rotation_matrix(obs["attitude"])
-        accel = self._acceleration_command(obs)
-        thrust_vector = self.params.mass * (accel - np.array([0.0, 0.0, GRAVITY]))  # NED force wanted
-        axis = -thrust_vector / np.linalg.norm(thrust_vector)                       # desired body z (down)
-        self.thrust_axis_reference = -axis
-        thrust = float(-thrust_vector @ R[:, 2])
-        rates_cmd = self._attitude_command(R, axis, float(obs["reference_yaw"][0]))
-        torque = self._rate_command(obs["gyro"], rates_cmd)
-        return self.mix(max(thrust, 0.0), torque)
-
-    def _acceleration_command(self, obs) -> np.ndarray:
-        error = obs["reference_position"] - obs["position"]
-        self._pos_integral += error * self.dt
-        integral = np.clip(self._ki * self._pos_integral, -self.gains.integral_limit, self.gains.integral_limit)
-        self._pos_integral = np.where(self._ki > 0, integral / np.where(self._ki > 0, self._ki, 1.0), 0.0)
-        accel = self._kp * error + self._kd * (obs["reference_velocity"] - obs["velocity"]) + integral
-        horizontal = np.hypot(accel[0], accel[1])
-        if horizontal > self._max_horizontal:
-            accel[:2] *= self._max_horizontal / horizontal
-        accel[2] = min(accel[2], 0.8 * GRAVITY)  # never command less than 20% of hover thrust
-        return accel
-
-    def _attitude_command(self, R, z_des, yaw) -> np.ndarray:
-        """Body-rate command from the geometric attitude error e_R = vee(R_d^T R - R^T R_d) / 2 (Lee 2010)."""
-        x_c = np.array([np.cos(yaw), np.sin(yaw), 0.0])
-        y_des = cross(z_des, x_c)
-        y_des /= np.linalg.norm(y_des)
-        R_des = np.array((cross(y_des, z_des), y_des, z_des)).T
-        E = R_des.T @ R - R.T @ R_des
-        e_R = 0.5 * np.array([E[2, 1], E[0, 2], E[1, 0]])
-        return np.minimum(np.maximum(-self._katt * e_R, -self._max_rate), self._max_rate)
-
-    def _rate_command(self, gyro, rates_cmd) -> np.ndarray:
         if self._gyro is None:
-            self._gyro = np.asarray(gyro, dtype=float).copy()
-        self._gyro += self._gyro_alpha * (gyro - self._gyro)
-        error = rates_cmd - self._gyro
-        limit = self._alpha_integral_limit
-        integral = self._rate_integral + self._krate_i * error * self.dt
-        self._rate_integral = np.minimum(np.maximum(integral, -limit), limit)
-        alpha = self._krate * error + self._rate_integral
-        inertia, w = self._inertia, self._gyro
-        return inertia * alpha + cross(w, inertia * w)
+            self._gyro = np.array(obs["gyro"], dtype=float)
+        return _control_step(obs["attitude"], obs["position"], obs["velocity"], obs["reference_position"],
+                             obs["reference_velocity"], float(obs["reference_yaw"][0]), obs["gyro"],
+                             self._pos_integral, self._rate_integral, self._gyro, self._thrust_axis,
+                             self._axis_gains, self._scalars, self._mixer_inverse)
 
     def mix(self, thrust: float, torque) -> np.ndarray:
-        """Normalised rotor commands for a collective thrust (N) and body torques (N m).
-
-        When the rotors saturate, yaw torque is given up first (it matters least for staying aloft): only the
-        share of it that fits between the rotor limits is kept.
-        """
-        base = self._mixer_inverse @ np.array([thrust, torque[0], torque[1], 0.0])
-        yaw = self._mixer_inverse[:, 3] * torque[2]
-        w2 = base + _largest_fitting_share(base, yaw, self._w2_min, self._w2_max) * yaw
-        omega = np.sqrt(np.clip(w2, self._w2_min, self._w2_max))
-        p = self.params
-        return np.clip((omega - p.omega_min) / (p.omega_max - p.omega_min), 0.0, 1.0).astype(np.float32)
+        """Normalised rotor commands for a collective thrust (N) and body torques (N m) (`_mix`)."""
+        return _mix(float(thrust), np.asarray(torque, dtype=float), self._mixer_inverse, self._scalars)
 
 
-def _largest_fitting_share(base: np.ndarray, extra: np.ndarray, low: float, high: float) -> float:
+@njit(cache=True)
+def _control_step(attitude, position, velocity, reference_position, reference_velocity, yaw, gyro,
+                  pos_integral, rate_integral, gyro_filtered, thrust_axis, gains, scalars,
+                  mixer_inverse):  # pragma: no cover (compiled)
+    """One step of `NominalController.act`: the normalised rotor commands (float32). Updates in place the
+    integrals, the filtered gyro and the thrust axis (-z) the command asks for (NED unit vector)."""
+    R = rotation_matrix_compiled(attitude)
+    accel = _acceleration_command(position, velocity, reference_position, reference_velocity, pos_integral,
+                                  gains, scalars)
+    mass = scalars[MASS]
+    thrust_vector = np.array([mass * accel[0], mass * accel[1], mass * (accel[2] - GRAVITY)])  # NED force wanted
+    axis = -thrust_vector / math.sqrt(np.dot(thrust_vector, thrust_vector))   # desired body z (down)
+    thrust_axis[:] = -axis
+    thrust = np.dot(-thrust_vector, R[:, 2].copy())
+    rates_cmd = _attitude_command(R, axis, yaw, gains)
+    torque = _rate_command(gyro, rates_cmd, rate_integral, gyro_filtered, gains, scalars)
+    return _mix(max(thrust, 0.0), torque, mixer_inverse, scalars)
+
+
+@njit(cache=True)
+def _acceleration_command(position, velocity, reference_position, reference_velocity, pos_integral, gains,
+                          scalars):  # pragma: no cover (compiled)
+    """Desired NED acceleration: position and velocity PID, the integral's acceleration clipped to
+    +-integral_limit (anti-windup, the integral kept consistent with the clip), the horizontal part limited to
+    the tilt limit's and at most 0.8 g downward (never less than 20% of hover thrust)."""
+    dt, limit, max_horizontal = scalars[DT], scalars[INTEGRAL_LIMIT], scalars[MAX_HORIZONTAL]
+    accel = np.empty(3)
+    for i in range(3):
+        error = reference_position[i] - position[i]
+        ki = gains[KI, i]
+        integral = min(max(ki * (pos_integral[i] + error * dt), -limit), limit)
+        pos_integral[i] = integral / ki if ki > 0 else 0.0
+        accel[i] = gains[KP, i] * error + gains[KD, i] * (reference_velocity[i] - velocity[i]) + integral
+    horizontal = math.hypot(accel[0], accel[1])
+    if horizontal > max_horizontal:
+        scale = max_horizontal / horizontal
+        accel[0] *= scale
+        accel[1] *= scale
+    accel[2] = min(accel[2], 0.8 * GRAVITY)
+    return accel
+
+
+@njit(cache=True)
+def _attitude_command(R, z_des, yaw, gains):  # pragma: no cover (compiled)
+    """Body-rate command from the geometric attitude error e_R = vee(R_d^T R - R^T R_d) / 2 (Lee 2010), R_d
+    with body z along `z_des` and heading `yaw`; clipped to +-max_rate."""
+    y = np.array(cross3_compiled(z_des, (math.cos(yaw), math.sin(yaw), 0.0)))
+    y /= math.sqrt(np.dot(y, y))
+    x = cross3_compiled(y, z_des)
+    R_des_T = np.array([[x[0], x[1], x[2]], [y[0], y[1], y[2]], [z_des[0], z_des[1], z_des[2]]])
+    E = R_des_T @ R - R.T @ R_des_T.T
+    e_R = (0.5 * E[2, 1], 0.5 * E[0, 2], 0.5 * E[1, 0])
+    rates = np.empty(3)
+    for i in range(3):
+        rates[i] = min(max(-gains[KATT, i] * e_R[i], -gains[MAX_RATE, i]), gains[MAX_RATE, i])
+    return rates
+
+
+@njit(cache=True)
+def _rate_command(gyro, rates_cmd, rate_integral, gyro_filtered, gains, scalars):  # pragma: no cover (compiled)
+    """Body torque (N m): the gyro low-passed (first order), a PI rate loop with its integral clipped to the
+    limit, times the inertia, plus the gyroscopic coupling w x I w."""
+    alpha = np.empty(3)
+    for i in range(3):
+        gyro_filtered[i] += scalars[GYRO_ALPHA] * (gyro[i] - gyro_filtered[i])
+        error = rates_cmd[i] - gyro_filtered[i]
+        limit = gains[RATE_INTEGRAL_LIMIT, i]
+        rate_integral[i] = min(max(rate_integral[i] + gains[KRATE_I, i] * error * scalars[DT], -limit), limit)
+        alpha[i] = gains[KRATE, i] * error + rate_integral[i]
+    inertia = gains[INERTIA]
+    gyroscopic = cross3_compiled(gyro_filtered, inertia * gyro_filtered)
+    return inertia * alpha + np.array(gyroscopic)
+
+
+@njit(cache=True)
+def _mix(thrust, torque, mixer_inverse, scalars):  # pragma: no cover (compiled)
+    """Normalised rotor commands (float32) for a collective thrust (N) and body torques (N m): the inverse of the
+    control-effectiveness model (module docstring) for squared rotor speeds.
+
+    When the rotors saturate, yaw torque is given up first (it matters least for staying aloft): only the
+    share of it that fits between the rotor limits is kept.
+    """
+    w2_min, w2_max, omega_min, omega_max = scalars[W2_MIN], scalars[W2_MAX], scalars[OMEGA_MIN], scalars[OMEGA_MAX]
+    base = mixer_inverse @ np.array([thrust, torque[0], torque[1], 0.0])
+    yaw = mixer_inverse[:, 3] * torque[2]
+    w2 = base + _largest_fitting_share(base, yaw, w2_min, w2_max) * yaw
+    command = np.empty(len(w2), dtype=np.float32)
+    for i in range(len(w2)):
+        omega = math.sqrt(min(max(w2[i], w2_min), w2_max))
+        command[i] = min(max((omega - omega_min) / (omega_max - omega_min), 0.0), 1.0)
+    return command
+
+
+@njit(cache=True)
+def _largest_fitting_share(base, extra, low, high):  # pragma: no cover (compiled)
     """The largest s in [0, 1] with low <= base + s extra <= high for every rotor that base leaves in range."""
     share = 1.0
     for b, e in zip(base, extra):

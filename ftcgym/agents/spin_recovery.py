@@ -30,20 +30,27 @@ wrap it with the nominal controller for the flight before the fault.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from ..models.constants import GRAVITY
-from ..models.geometry import cross, rotation_matrix
+from ..models.geometry import blas_dot, cross3_compiled, rotation_matrix_compiled
 from ..models.quadrotor import QuadrotorParams
 from ..models.sensors import GYRO_LIMIT
-from .axis_lqr import ScheduledAxisLqr
+from .axis_lqr import ScheduledAxisLqr, lqr_forces
 from .base import UP
 from .relaxed_hover import relaxed_hover_equilibrium
 
 #: Force ratio rho = f_opposite / f_adjacent flown per vehicle; others get `choose_rho`.
 DEFAULT_RHO = {"mueller2014": 0.5}   # Mueller & D'Andrea's choice
+#: rows of `SpinRecoveryController._outer_gains`, per axis: SpinRecoveryGains position, velocity, position_integral
+KP, KD, KI = range(3)
+#: entries of `SpinRecoveryController._scalars`
+(DT, GYRO_ALPHA, MAX_HORIZONTAL, INTEGRAL_LIMIT, INTEGRAL_ZONE, MAX_HORIZONTAL_SPEED, MASS, THRUST_COEFFICIENT,
+ OMEGA_MIN, OMEGA_MAX) = range(10)
 
 
 @dataclass
@@ -63,7 +70,7 @@ class SpinRecoveryGains:
     schedule_power: float = 2.0                # target axis leans toward n_bar as (r / r_bar)^power
     boost_until: float = 0.5                   # below this share of r_bar the adjacent pair runs flat out
     arrest_rate: float | None = None           # rad/s: above this roll/pitch rate the boost damps it first
-    arrest_gain: float = 14.0                  # 1/s, rate-damping gain of the arrest (see ScheduledAxisLqr.arrest)
+    arrest_gain: float = 14.0                  # 1/s, rate-damping gain of the arrest (see axis_lqr.arrest)
     arrest_attitude_gain: float = 0.0          # 1/s, rate per radian of thrust-axis error the arrest steers to
     arrest_attitude_fade: float | None = None  # share of the boost's spin over which that rate target fades out
     lqr_axis_weight: float = 1000.0            # 1/rad^2 on n_x, n_y errors
@@ -72,7 +79,7 @@ class SpinRecoveryGains:
     lqr_force_weight: float = 0.1              # 1/N^2 on rotor-force errors
     lqr_input_weight: float = 1.0              # 1/N^2 on the two zero-thrust force changes
     lqr_opposite_weight: float = 1.0           # extra weight on the opposite rotor's input at r = 0
-    balance_idle: bool = False                 # operating point with the opposite rotor at idle (see _idle_balance)
+    balance_idle: bool = False                 # operating point, opposite rotor at idle (axis_lqr._idle_balance)
     # landing
     landing_speed: float = 0.4                 # m/s, descent of `land()` above 1 m (<= 0.5 m/s)
     touchdown_speed: float = 0.25              # m/s, descent in the last metre
@@ -117,6 +124,10 @@ class SpinRecoveryController:
     reference into a descent and touchdown. `mode`: "standby" (not engaged), "hold", "land", "landed".
     `thrust_axis_reference` (NED unit vector): where the controller wants the thrust axis -z now (see
     `thrust_axis_reference_for`); `axis_command`: n_des, the world direction it wants to spin about.
+    The gains are read when the controller is built (the inner loop's when it engages a rotor), except
+    `axis_slew_rate_deg` and the landing speeds, read at each step. The step's arithmetic is compiled
+    (`_axis_demand`, `_inner_step`; numba) in the order of the numpy version it replaced, the products and
+    solves BLAS's and LAPACK's as numpy's, so trajectories keep their bits.
     """
 
     def __init__(self, params: QuadrotorParams, agent_hz: float, gains: SpinRecoveryGains | None = None):
@@ -124,10 +135,11 @@ class SpinRecoveryController:
         self.gains = gains or gains_for(params)
         self.dt = 1.0 / agent_hz
         g = self.gains
-        self._kp, self._kd, self._ki = (np.asarray(x, dtype=float)
-                                        for x in (g.position, g.velocity, g.position_integral))
-        self._gyro_alpha = 1.0 - np.exp(-2 * np.pi * g.gyro_cutoff_hz * self.dt)
-        self._max_horizontal = GRAVITY * np.tan(np.deg2rad(g.max_axis_tilt_deg))
+        self._outer_gains = np.array([g.position, g.velocity, g.position_integral], dtype=float)
+        self._scalars = np.array([self.dt, 1.0 - np.exp(-2 * np.pi * g.gyro_cutoff_hz * self.dt),
+                                  GRAVITY * np.tan(np.deg2rad(g.max_axis_tilt_deg)), g.integral_limit,
+                                  g.integral_zone, g.max_horizontal_speed, params.mass, params.thrust_coefficient,
+                                  params.omega_min, params.omega_max], dtype=float)
         self._equilibria: dict[int, dict] = {}
         self._lqrs: dict[int, ScheduledAxisLqr] = {}
         self.reset()
@@ -177,16 +189,19 @@ class SpinRecoveryController:
             self.mode = "landed"
         if self.mode == "landed":
             return np.zeros(4, dtype=np.float32)
-        R = rotation_matrix(obs["attitude"])
-        rates = self._filtered_rates(obs["gyro"])
-        position, velocity = self._circle_centre(obs, R, rates)
-        force = self._force_command(obs, position, velocity)
-        self.axis_command = self._slew(force / np.linalg.norm(force))
-        thrust = -force[2] / max(R[2, 2], 0.5)
-        n_body = R.T @ self.axis_command
-        forces, n_target = self._lqr.forces(n_body, rates, obs["rotor_speed"], thrust)
-        self.thrust_axis_reference = thrust_axis_reference_for(R, n_body, n_target)
-        return self._commands(forces)
+        R = rotation_matrix_compiled(np.asarray(obs["attitude"], dtype=float))
+        gyro, rotor_speed = np.asarray(obs["gyro"], dtype=float), np.asarray(obs["rotor_speed"], dtype=float)
+        if self._gyro is None:
+            self._gyro = gyro.copy()
+        target, velocity_ref = self._position_reference(obs)
+        axis, thrust = _axis_demand(R, gyro, np.asarray(obs["position"], dtype=float),
+                                    np.asarray(obs["velocity"], dtype=float), rotor_speed, target, velocity_ref,
+                                    self._gyro, self._pos_integral, self._lqr.working, self._outer_gains,
+                                    self._scalars)
+        self.axis_command = self._slew(axis)
+        command, self.thrust_axis_reference = _inner_step(R, self.axis_command, self._gyro, rotor_speed, thrust,
+                                                          self._lqr.model, self._scalars)
+        return command
 
     def _slew(self, axis) -> np.ndarray:
         """The commanded axis turned from its last value toward `axis` by at most axis_slew_rate_deg * dt."""
@@ -194,62 +209,13 @@ class SpinRecoveryController:
         if rate is None or self._axis_slewed is None:
             self._axis_slewed = axis
             return axis
-        step = np.deg2rad(rate) * self.dt
+        step = math.radians(rate) * self.dt
         previous = self._axis_slewed
-        angle = float(np.arccos(np.clip(previous @ axis, -1.0, 1.0)))
-        if angle > step:
-            k = cross(previous, axis)
-            k /= np.linalg.norm(k)
-            axis = previous * np.cos(step) + cross(k, previous) * np.sin(step)
+        # numpy's arccos: on AVX-512 machines numpy has its own kernel, whose bits math.acos does not share
+        if float(np.arccos(min(max(blas_dot(previous, axis), -1.0), 1.0))) > step:
+            axis = _turn_toward(previous, axis, step)
         self._axis_slewed = axis
         return axis
-
-    def _filtered_rates(self, gyro) -> np.ndarray:
-        gyro = np.asarray(gyro, dtype=float)
-        if self._gyro is None:
-            self._gyro = gyro.copy()
-        self._gyro += self._gyro_alpha * (gyro - self._gyro)
-        return self._gyro
-
-    def _circle_centre(self, obs, R, rates):
-        """Position and velocity of the centre of the small circle the spinning vehicle flies.
-
-        The thrust component a_perp normal to the spin axis turns with the body at |Omega|, so the centre of
-        mass circles at radius |a_perp| / |Omega|^2 with velocity -Omega_w x a_perp / |Omega|^2 (App. B's
-        r_ps). That motion is locked to the spin: fed back, it would return as a constant offset of the
-        primary axis in the body (4 deg on mueller2014). The outer loop sees the centre only.
-        """
-        position, velocity = np.asarray(obs["position"], float), np.asarray(obs["velocity"], float)
-        spin_w = R @ rates
-        spin2 = float(spin_w @ spin_w)
-        weight = min(max((np.sqrt(spin2) - 5.0) / 5.0, 0.0), 1.0)   # no circle to speak of below ~5 rad/s
-        if weight == 0.0:
-            return position, velocity
-        omega = np.asarray(obs["rotor_speed"], float)[self._lqr.working]
-        accel = self.params.thrust_coefficient * float(omega @ omega) / self.params.mass * -R[:, 2]
-        accel_perp = accel - spin_w * float(spin_w @ accel) / spin2
-        return (position + weight * accel_perp / spin2,
-                velocity + weight * cross(spin_w, accel_perp) / spin2)
-
-    def _force_command(self, obs, position, velocity) -> np.ndarray:
-        """Desired force (NED, N): position PD + integral, velocity command capped, tilt of n_des limited."""
-        target, velocity_ref = self._position_reference(obs)
-        error = target - position
-        limit = self.gains.integral_limit
-        # Integrate only near the target: the transient after the switch would wind it up (overshoot).
-        near = np.abs(error) < self.gains.integral_zone
-        integral = np.clip(self._ki * (self._pos_integral + near * error * self.dt), -limit, limit)
-        self._pos_integral = integral / self._ki
-        velocity_cmd = velocity_ref + self._kp / self._kd * error
-        horizontal = np.hypot(velocity_cmd[0], velocity_cmd[1])
-        if horizontal > self.gains.max_horizontal_speed:
-            velocity_cmd[:2] *= self.gains.max_horizontal_speed / horizontal
-        accel = self._kd * (velocity_cmd - velocity) + integral
-        horizontal = np.hypot(accel[0], accel[1])
-        if horizontal > self._max_horizontal:
-            accel[:2] *= self._max_horizontal / horizontal
-        accel[2] = min(accel[2], 0.7 * GRAVITY)   # never ask for less than 30% of the weight
-        return self.params.mass * (accel - np.array([0.0, 0.0, GRAVITY]))
 
     def _position_reference(self, obs):
         """The task's reference while holding; while landing, a point sinking below the ground at the
@@ -275,15 +241,9 @@ class SpinRecoveryController:
     def _rest_height(self) -> float:
         return 0.5 * self.params.body_size[2]
 
-    def _commands(self, forces) -> np.ndarray:
-        p = self.params
-        omega = np.sqrt(forces / p.thrust_coefficient)
-        command = np.zeros(4)
-        command[self._lqr.working] = (omega - p.omega_min) / (p.omega_max - p.omega_min)
-        return np.clip(command, 0.0, 1.0).astype(np.float32)
 
-
-def thrust_axis_reference_for(R, n_body, n_target) -> np.ndarray:
+@njit(cache=True)
+def thrust_axis_reference_for(R, n_body, n_target):  # pragma: no cover (compiled)
     """Where the thrust axis belongs now: -z of the attitude nearest R whose primary axis is on target.
 
     That attitude is R Q, Q the smallest rotation taking n_target to n_body (the commanded axis n_des seen in
@@ -291,11 +251,100 @@ def thrust_axis_reference_for(R, n_body, n_target) -> np.ndarray:
     measured one. In the relaxed hover the thrust axis circles n_des at the equilibrium tilt (16 deg for
     mueller2014 at rho = 0.5): compared with n_des itself, that design tilt would count as error.
     """
-    axis = cross(n_target, n_body)
-    s, c = float(np.linalg.norm(axis)), float(n_target @ n_body)
+    axis = np.array(cross3_compiled(n_target, n_body))
+    s, c = math.sqrt(np.dot(axis, axis)), np.dot(n_target, n_body)
     minus_z = np.array([0.0, 0.0, -1.0])
     if s < 1e-12:
         return R @ minus_z
     k = axis / s
-    rotated = minus_z * c + cross(k, minus_z) * s + k * float(k @ minus_z) * (1.0 - c)   # Rodrigues
+    rotated = (minus_z * c + np.array(cross3_compiled(k, minus_z)) * s
+               + k * np.dot(k, minus_z) * (1.0 - c))   # Rodrigues
     return R @ rotated
+
+
+@njit(cache=True)
+def _turn_toward(previous, axis, step):  # pragma: no cover (compiled)
+    """`previous` (unit vector) turned by the angle `step` toward `axis` (Rodrigues about previous x axis)."""
+    k = np.array(cross3_compiled(previous, axis))
+    k /= math.sqrt(np.dot(k, k))
+    return previous * math.cos(step) + np.array(cross3_compiled(k, previous)) * math.sin(step)
+
+
+@njit(cache=True)
+def _axis_demand(R, gyro, position, velocity, rotor_speed, target, velocity_ref, gyro_filtered, pos_integral,
+                 working, gains, scalars):  # pragma: no cover (compiled)
+    """Outer loop (module docstring, step 1): the desired thrust direction n_des (NED unit vector, before the
+    slew) and the collective thrust from the vertical balance T R_33 = -F_z. Low-passes the gyro (first order,
+    against motor vibration) and updates the position integral, in place."""
+    alpha = scalars[GYRO_ALPHA]
+    for i in range(3):
+        gyro_filtered[i] += alpha * (gyro[i] - gyro_filtered[i])
+    centre, centre_velocity = _circle_centre(R, gyro_filtered, position, velocity, rotor_speed[working], scalars)
+    force = _force_command(target, velocity_ref, centre, centre_velocity, pos_integral, gains, scalars)
+    return force / math.sqrt(np.dot(force, force)), -force[2] / max(R[2, 2], 0.5)
+
+
+@njit(cache=True)
+def _circle_centre(R, rates, position, velocity, omega, scalars):  # pragma: no cover (compiled)
+    """Position and velocity of the centre of the small circle the spinning vehicle flies; `omega`: the
+    working rotors' speeds.
+
+    The thrust component a_perp normal to the spin axis turns with the body at |Omega|, so the centre of
+    mass circles at radius |a_perp| / |Omega|^2 with velocity -Omega_w x a_perp / |Omega|^2 (App. B's
+    r_ps). That motion is locked to the spin: fed back, it would return as a constant offset of the
+    primary axis in the body (4 deg on mueller2014). The outer loop sees the centre only.
+    """
+    spin_w = R @ rates
+    spin2 = np.dot(spin_w, spin_w)
+    weight = min(max((math.sqrt(spin2) - 5.0) / 5.0, 0.0), 1.0)   # no circle to speak of below ~5 rad/s
+    if weight == 0.0:
+        return position, velocity
+    accel = scalars[THRUST_COEFFICIENT] * np.dot(omega, omega) / scalars[MASS] * -R[:, 2]
+    accel_perp = accel - spin_w * np.dot(spin_w, accel) / spin2
+    return (position + weight * accel_perp / spin2,
+            velocity + weight * np.array(cross3_compiled(spin_w, accel_perp)) / spin2)
+
+
+@njit(cache=True)
+def _force_command(target, velocity_ref, position, velocity, pos_integral, gains,
+                   scalars):  # pragma: no cover (compiled)
+    """Desired force (NED, N): position PD + integral, velocity command capped, tilt of n_des limited. The
+    integral runs only near the target: the transient after the switch would wind it up (overshoot)."""
+    dt, limit, zone = scalars[DT], scalars[INTEGRAL_LIMIT], scalars[INTEGRAL_ZONE]
+    velocity_cmd, integral = np.empty(3), np.empty(3)
+    for i in range(3):
+        error = target[i] - position[i]
+        near = 1.0 if abs(error) < zone else 0.0
+        integral[i] = min(max(gains[KI, i] * (pos_integral[i] + near * error * dt), -limit), limit)
+        pos_integral[i] = integral[i] / gains[KI, i]
+        velocity_cmd[i] = velocity_ref[i] + gains[KP, i] / gains[KD, i] * error
+    _limit_horizontal(velocity_cmd, scalars[MAX_HORIZONTAL_SPEED])
+    accel = gains[KD] * (velocity_cmd - velocity) + integral
+    _limit_horizontal(accel, scalars[MAX_HORIZONTAL])
+    accel[2] = min(accel[2], 0.7 * GRAVITY)   # never ask for less than 30% of the weight
+    mass = scalars[MASS]
+    return np.array([mass * accel[0], mass * accel[1], mass * (accel[2] - GRAVITY)])
+
+
+@njit(cache=True)
+def _limit_horizontal(vector, limit):  # pragma: no cover (compiled)
+    """Scale the horizontal part of `vector` (in place) down to `limit` at most."""
+    horizontal = math.hypot(vector[0], vector[1])
+    if horizontal > limit:
+        scale = limit / horizontal
+        vector[0] *= scale
+        vector[1] *= scale
+
+
+@njit(cache=True)
+def _inner_step(R, axis_command, rates, rotor_speed, thrust, model, scalars):  # pragma: no cover (compiled)
+    """Inner loop and rotors (module docstring, steps 2-3): the normalised rotor commands (float32; the failed
+    rotor idles) and the thrust axis reference (`thrust_axis_reference_for`). The primary axis n_B = R^T n_des."""
+    n_body = R.T @ axis_command
+    forces, n_target = lqr_forces(model, n_body, rates, rotor_speed, thrust)
+    omega_min, omega_max = scalars[OMEGA_MIN], scalars[OMEGA_MAX]
+    omega = np.sqrt(forces / scalars[THRUST_COEFFICIENT])    # f = c_T omega^2 (App. B eq. 10)
+    command = np.zeros(4, dtype=np.float32)
+    for k in range(len(model.working)):
+        command[model.working[k]] = min(max((omega[k] - omega_min) / (omega_max - omega_min), 0.0), 1.0)
+    return command, thrust_axis_reference_for(R, n_body, n_target)

@@ -1,16 +1,19 @@
-"""Rotation math shared by the simulator, the detectors and the controllers (numpy only, no simulator).
+"""Rotation math shared by the simulator, the detectors and the controllers (numpy and numba, no simulator).
 
 Quaternions are (x, y, z, w), scalar last, as in PyBullet and scipy; matrices rotate body vectors into the
 world. Euler angles are ZYX (yaw, pitch, roll), as in the papers: R = Rz(psi) Ry(theta) Rx(phi).
 
 Functions marked `register_jitable` run as plain numpy when called from Python and are compiled into the numba
-code that calls them (the aekf detector's step), with the same bits.
+code that calls them (the aekf detector's step), with the same bits. The `*_compiled` forms are the same
+functions compiled with numba, for compiled kernels (the controllers' steps): the same source, elementwise
+arithmetic only, so the same bits.
 """
 from __future__ import annotations
 
 import math
 
 import numpy as np
+from numba import njit
 from numba.extending import register_jitable
 
 
@@ -70,3 +73,19 @@ def euler_from_quat(q) -> np.ndarray:
     return np.array((math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y)),
                      math.asin(min(max(2 * (w * y - z * x), -1.0), 1.0)),
                      math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))))
+
+
+cross3_compiled = njit(cache=True)(cross3)
+rotation_matrix_compiled = njit(cache=True)(rotation_matrix)
+
+
+@njit(cache=True)
+def blas_dot(a, b):  # pragma: no cover (compiled)
+    """a . b of two vectors (tuples or arrays) as numpy's `a @ b` on float64 arrays: BLAS's ddot, whose
+    pairings (and fused multiply-adds, where its kernel has them) a plain Python sum need not reproduce."""
+    x, y = np.empty(len(a)), np.empty(len(b))
+    for i in range(len(a)):
+        x[i] = a[i]
+    for i in range(len(b)):
+        y[i] = b[i]
+    return np.dot(x, y)
