@@ -66,6 +66,30 @@ def test_config_names_the_activation_and_rejects_an_unknown_one(tmp_path):
         load_config(str(path))
 
 
+@pytest.mark.parametrize(("vec_env", "n_envs", "expected"), [("auto", 1, "DummyVecEnv"), ("auto", 2, "SubprocVecEnv"),
+                                                         ("dummy", 2, "DummyVecEnv"), ("subproc", 1, "SubprocVecEnv")])
+def test_vec_env_picks_sb3s_vector_env(tmp_path, vec_env, n_envs, expected):
+    from ftcgym.training.train import build_vec_env
+    document = yaml.safe_load(_config(tmp_path, n_envs=n_envs).read_text())
+    document["rotor-loss-recovery"]["vec_env"] = vec_env
+    path = tmp_path / "vec.yaml"
+    path.write_text(yaml.safe_dump(document))
+    venv = build_vec_env(load_config(str(path)), normalize=False)
+    try:
+        assert type(venv).__name__ == expected and venv.num_envs == n_envs
+    finally:
+        venv.close()
+
+
+def test_vec_env_is_validated(tmp_path):
+    document = yaml.safe_load(_config(tmp_path).read_text())
+    document["rotor-loss-recovery"]["vec_env"] = "threads"
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(document))
+    with pytest.raises(ValueError, match=r"vec_env: 'threads'; accepted: \['auto', 'subproc', 'dummy'\]"):
+        load_config(str(path))
+
+
 def test_task_env_passes_checkers_and_starts_at_the_alarm():
     from gymnasium.utils.env_checker import check_env
     from stable_baselines3.common.env_checker import check_env as sb3_check_env

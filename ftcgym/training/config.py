@@ -7,6 +7,7 @@
       default_algo: PPO
       checkpoint_freq: 100000               # env steps
       torch_threads: 1                      # torch.set_num_threads for the updates
+      vec_env: auto                         # subproc (a process per env), dummy (all in this process), or auto
       eval: {scenario: quad-rotor-loss-hover, episodes: 4, freq: 50000, env_kwargs: {}}
       pretrain: {method: dagger, env_kwargs: {expert: true}, ...}   # imitation first (imitation.DaggerSettings)
       PPO:                                  # one section per algorithm
@@ -36,6 +37,10 @@ from ftcgym.benchmark.sweep import read_yaml
 
 CONFIG_DIR = Path(__file__).with_name("configs")
 ALGOS = ("PPO", "SAC")
+#: `vec_env`: SB3's SubprocVecEnv ("subproc", one process per env), DummyVecEnv ("dummy", the envs stepped in turn
+#: in the learner's process), or "auto": subproc for more than one env. A step through a process pipe costs about
+#: 100 us on a 2-core machine, so subproc pays only where an env step costs much more (docs/performance.md).
+VEC_ENVS = ("auto", "subproc", "dummy")
 SECTION_KEYS = ("n_envs", "n_timesteps", "policy", "normalize", "policy_kwargs")
 #: `policy_kwargs.activation_fn` by name (RL Zoo writes the class, `nn.ReLU`; YAML keeps to plain data).
 ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "LeakyReLU", "silu": "SiLU"}
@@ -60,6 +65,7 @@ class TrainConfig:
     checkpoint_freq: int = 100_000
     eval: dict | None = None
     torch_threads: int = 1
+    vec_env: str = "auto"          # VEC_ENVS
     pretrain: dict | None = None   # imitation pre-training (`imitation.dagger`); env_kwargs added for it
     source: str = ""
     quick: bool = False            # the file's `quick` section was merged in (`--quick`)
@@ -132,8 +138,10 @@ def load_config(name_or_path: str, algo: str | None = None, n_envs: int | None =
         env_kwargs=body.get("env_kwargs") or {}, wrappers=list(body.get("wrappers") or []),
         normalize=normalize, policy_kwargs=section.pop("policy_kwargs", None) or {},
         checkpoint_freq=int(body.get("checkpoint_freq", 100_000)), eval=body.get("eval"),
-        torch_threads=int(body.get("torch_threads", 1)), pretrain=body.get("pretrain"), source=str(path),
-        quick=bool(quick))
+        torch_threads=int(body.get("torch_threads", 1)), vec_env=body.get("vec_env", "auto"),
+        pretrain=body.get("pretrain"), source=str(path), quick=bool(quick))
+    if config.vec_env not in VEC_ENVS:
+        raise ValueError(f"config {path}: vec_env: {config.vec_env!r}; accepted: {list(VEC_ENVS)}")
     section.pop("n_envs", None)
     section.pop("n_timesteps", None)
     config.hyperparams = section

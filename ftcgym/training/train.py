@@ -1,8 +1,9 @@
 """`train(config, out)`: one Stable-Baselines3 run of a task config.
 
-Builds `n_envs` copies of the config's env (SubprocVecEnv for more than one, DummyVecEnv for one, each in
-a Monitor), VecNormalize, the algorithm, and callbacks: checkpoints (with VecNormalize statistics), the
-benchmark-metric evaluation, a progress bar. TensorBoard logs go to OUT/tb when tensorboard is installed.
+Builds `n_envs` copies of the config's env (the config's `vec_env`: by default SubprocVecEnv for more than
+one, DummyVecEnv for one; each in a Monitor), VecNormalize, the algorithm, and callbacks: checkpoints (with
+VecNormalize statistics), the benchmark-metric evaluation, a progress bar. TensorBoard logs go to OUT/tb when
+tensorboard is installed.
 Writes to OUT:
 
     model.zip, vecnormalize.pkl     the final model and its observation/reward normalisation
@@ -71,7 +72,8 @@ def build_vec_env(config: TrainConfig, extra_kwargs: dict | None = None, normali
 
     factory = functools.partial(make_env, config.env_id, {**config.env_kwargs, **(extra_kwargs or {})},
                                 config.wrappers)
-    vec_cls = SubprocVecEnv if config.n_envs > 1 else DummyVecEnv
+    subproc = config.vec_env == "subproc" or (config.vec_env == "auto" and config.n_envs > 1)
+    vec_cls = SubprocVecEnv if subproc else DummyVecEnv
     venv = vec_cls([factory] * config.n_envs)
     venv.seed(config.seed)
     if config.normalize and normalize:
