@@ -9,17 +9,20 @@ from numba.core import config as _numba_config
 
 __version__ = "0.1.0"
 _KEPT_CACHES = 4
+#: where the compiled functions and everything they can import live (the layers below task_envs, README 'Layout')
+_COMPILED_LAYERS = ("", "models/", "envs/", "fdd/", "agents/")
 
 
 def _compiled_cache_dir() -> Path | None:
-    """Where numba keeps the package's compiled functions: a folder named by a fingerprint of every source file
-    (path, time stamp, size) under NUMBA_CACHE_DIR or the user's cache folder. numba checks a cached function
-    against its own file only, so a kernel that calls one from another module would outlive an edit of that
-    module; with the fingerprint any edit starts a fresh cache. The newest few folders are kept. None where the
-    folder cannot be made (numba then caches beside the sources, as by default)."""
+    """Where numba keeps the package's compiled functions: a folder named by a fingerprint of the source files of
+    the layers that hold them (path, time stamp, size), under NUMBA_CACHE_DIR or the user's cache folder. numba
+    checks a cached function against its own file only, so a kernel that calls one from another module would
+    outlive an edit of that module; with the fingerprint an edit there starts a fresh cache. The newest few
+    folders are kept. None where the folder cannot be made (numba then caches beside the sources, as by
+    default)."""
     package = Path(__file__).parent
     stamp = hashlib.sha1()
-    for path in sorted(package.rglob("*.py")):
+    for path in sorted(path for folder in _COMPILED_LAYERS for path in package.glob(f"{folder}*.py")):
         info = path.stat()
         stamp.update(f"{path.relative_to(package)}:{info.st_mtime_ns}:{info.st_size};".encode())
     root = Path(os.environ.get("NUMBA_CACHE_DIR") or Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"),
