@@ -17,8 +17,8 @@ import numpy as np
 from numba import njit
 from scipy.linalg import solve_continuous_are
 
-from ..models.geometry import cross3_compiled
-from ..models.quadrotor import YAW_SIGNS, QuadrotorParams, rotational_drag_moment_compiled
+from ..models.geometry import cross3
+from ..models.quadrotor import YAW_SIGNS, QuadrotorParams, rotational_drag_moment
 from .relaxed_hover import body_moment, rotor_roles
 
 if TYPE_CHECKING:
@@ -155,8 +155,8 @@ def operating_point(model, r, thrust, rotor_speed):  # pragma: no cover (compile
     rates = r / axis[2] * axis
     h_z = _propeller_momentum(model, thrust, rotor_speed)
     momentum = model.inertia * rates + np.array([0.0, 0.0, h_z])
-    needed = (np.array(cross3_compiled(rates, momentum))
-              - rotational_drag_moment_compiled(model.drag_linear, model.drag_quadratic, rates))
+    needed = (np.array(cross3(rates, momentum))
+              - rotational_drag_moment(model.drag_linear, model.drag_quadratic, rates))
     forces = np.linalg.solve(model.balance_rows, np.array([needed[0], needed[1], thrust]))
     if forces[model.opposite] < model.f_min and model.balance_idle:
         rates, forces = _idle_balance(model, rates, thrust, h_z)

@@ -43,7 +43,7 @@ import numpy as np
 from numba import njit
 
 from ..models.constants import GRAVITY
-from ..models.geometry import blas_dot, cross3, cross3_compiled, rotation_from_euler, rotation_matrix_compiled
+from ..models.geometry import blas_dot, cross3, rotation_from_euler, rotation_matrix
 from ..models.pusher import throttle_for_speed
 from ..models.quadplane_aero import aero_loads, aero_model, skew_schedule
 from ..models.tasks import MissionTask
@@ -454,7 +454,7 @@ class _Navigation:
         self.position = tuple(np.asarray(obs["position"], float).tolist())
         self.velocity = tuple(np.asarray(obs["velocity"], float).tolist())
         self.gyro = np.asarray(obs["gyro"], float)
-        self.R = rotation_matrix_compiled(np.asarray(obs["attitude"], float))
+        self.R = rotation_matrix(np.asarray(obs["attitude"], float))
         (r00, _, _), (r10, _, _), (r20, r21, r22) = self.R.tolist()
         self.skew = float(obs["skew"][0])
         self.pitch = -math.asin(min(max(r20, -1.0), 1.0))
@@ -506,9 +506,9 @@ def _limit_tilt(axis, limit):  # pragma: no cover (compiled)
 def _attitude_from_axis(thrust_axis, yaw):  # pragma: no cover (compiled)
     """Rotation (body FRD -> NED) whose -z is `thrust_axis` and whose heading is `yaw`."""
     z = -thrust_axis
-    y = np.array(cross3_compiled(z, (math.cos(yaw), math.sin(yaw), 0.0)))
+    y = np.array(cross3(z, (math.cos(yaw), math.sin(yaw), 0.0)))
     y /= math.sqrt(np.dot(y, y))
-    x = cross3_compiled(y, z)
+    x = cross3(y, z)
     R = np.empty((3, 3))
     for i in range(3):
         R[i, 0], R[i, 1], R[i, 2] = x[i], y[i], z[i]
@@ -534,7 +534,7 @@ def _moment_command(R, R_des, rates, turn_rates, rate_integral, gains, dt):  # p
         rate_integral[i] = min(max(rate_integral[i] + gains[KRATE_I, i] * rate_error * dt, -limit), limit)
         alpha[i] = gains[KRATE, i] * rate_error + rate_integral[i]
     inertia = gains[INERTIA]
-    return inertia * alpha + np.array(cross3_compiled(rates, inertia * rates))
+    return inertia * alpha + np.array(cross3(rates, inertia * rates))
 
 
 @njit(cache=True)

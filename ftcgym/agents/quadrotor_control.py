@@ -16,7 +16,7 @@ import numpy as np
 from numba import njit
 
 from ..models.constants import GRAVITY
-from ..models.geometry import cross3_compiled, rotation_matrix_compiled
+from ..models.geometry import cross3, rotation_matrix
 from ..models.quadrotor import QuadrotorParams, rotor_wrench_matrix
 from .base import UP
 
@@ -117,7 +117,7 @@ def _control_step(attitude, position, velocity, reference_position, reference_ve
                   mixer_inverse):  # pragma: no cover (compiled)
     """One step of `NominalController.act`: the normalised rotor commands (float32). Updates in place the
     integrals, the filtered gyro and the thrust axis (-z) the command asks for (NED unit vector)."""
-    R = rotation_matrix_compiled(attitude)
+    R = rotation_matrix(attitude)
     accel = _acceleration_command(position, velocity, reference_position, reference_velocity, pos_integral,
                                   gains, scalars)
     mass = scalars[MASS]
@@ -157,9 +157,9 @@ def _acceleration_command(position, velocity, reference_position, reference_velo
 def _attitude_command(R, z_des, yaw, gains):  # pragma: no cover (compiled)
     """Body-rate command from the geometric attitude error e_R = vee(R_d^T R - R^T R_d) / 2 (Lee 2010), R_d
     with body z along `z_des` and heading `yaw`; clipped to +-max_rate."""
-    y = np.array(cross3_compiled(z_des, (math.cos(yaw), math.sin(yaw), 0.0)))
+    y = np.array(cross3(z_des, (math.cos(yaw), math.sin(yaw), 0.0)))
     y /= math.sqrt(np.dot(y, y))
-    x = cross3_compiled(y, z_des)
+    x = cross3(y, z_des)
     R_des_T = np.array([[x[0], x[1], x[2]], [y[0], y[1], y[2]], [z_des[0], z_des[1], z_des[2]]])
     E = R_des_T @ R - R.T @ R_des_T.T
     e_R = (0.5 * E[2, 1], 0.5 * E[0, 2], 0.5 * E[1, 0])
@@ -181,7 +181,7 @@ def _rate_command(gyro, rates_cmd, rate_integral, gyro_filtered, gains, scalars)
         rate_integral[i] = min(max(rate_integral[i] + gains[KRATE_I, i] * error * scalars[DT], -limit), limit)
         alpha[i] = gains[KRATE, i] * error + rate_integral[i]
     inertia = gains[INERTIA]
-    gyroscopic = cross3_compiled(gyro_filtered, inertia * gyro_filtered)
+    gyroscopic = cross3(gyro_filtered, inertia * gyro_filtered)
     return inertia * alpha + np.array(gyroscopic)
 
 

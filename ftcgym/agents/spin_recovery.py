@@ -37,7 +37,7 @@ import numpy as np
 from numba import njit
 
 from ..models.constants import GRAVITY
-from ..models.geometry import blas_dot, cross3_compiled, rotation_matrix_compiled
+from ..models.geometry import blas_dot, cross3, rotation_matrix
 from ..models.quadrotor import QuadrotorParams
 from ..models.sensors import GYRO_LIMIT
 from .axis_lqr import ScheduledAxisLqr, lqr_forces
@@ -189,7 +189,7 @@ class SpinRecoveryController:
             self.mode = "landed"
         if self.mode == "landed":
             return np.zeros(4, dtype=np.float32)
-        R = rotation_matrix_compiled(np.asarray(obs["attitude"], dtype=float))
+        R = rotation_matrix(np.asarray(obs["attitude"], dtype=float))
         gyro, rotor_speed = np.asarray(obs["gyro"], dtype=float), np.asarray(obs["rotor_speed"], dtype=float)
         if self._gyro is None:
             self._gyro = gyro.copy()
@@ -251,13 +251,13 @@ def thrust_axis_reference_for(R, n_body, n_target):  # pragma: no cover (compile
     measured one. In the relaxed hover the thrust axis circles n_des at the equilibrium tilt (16 deg for
     mueller2014 at rho = 0.5): compared with n_des itself, that design tilt would count as error.
     """
-    axis = np.array(cross3_compiled(n_target, n_body))
+    axis = np.array(cross3(n_target, n_body))
     s, c = math.sqrt(np.dot(axis, axis)), np.dot(n_target, n_body)
     minus_z = np.array([0.0, 0.0, -1.0])
     if s < 1e-12:
         return R @ minus_z
     k = axis / s
-    rotated = (minus_z * c + np.array(cross3_compiled(k, minus_z)) * s
+    rotated = (minus_z * c + np.array(cross3(k, minus_z)) * s
                + k * np.dot(k, minus_z) * (1.0 - c))   # Rodrigues
     return R @ rotated
 
@@ -265,9 +265,9 @@ def thrust_axis_reference_for(R, n_body, n_target):  # pragma: no cover (compile
 @njit(cache=True)
 def _turn_toward(previous, axis, step):  # pragma: no cover (compiled)
     """`previous` (unit vector) turned by the angle `step` toward `axis` (Rodrigues about previous x axis)."""
-    k = np.array(cross3_compiled(previous, axis))
+    k = np.array(cross3(previous, axis))
     k /= math.sqrt(np.dot(k, k))
-    return previous * math.cos(step) + np.array(cross3_compiled(k, previous)) * math.sin(step)
+    return previous * math.cos(step) + np.array(cross3(k, previous)) * math.sin(step)
 
 
 @njit(cache=True)
@@ -302,7 +302,7 @@ def _circle_centre(R, rates, position, velocity, omega, scalars):  # pragma: no 
     accel = scalars[THRUST_COEFFICIENT] * np.dot(omega, omega) / scalars[MASS] * -R[:, 2]
     accel_perp = accel - spin_w * np.dot(spin_w, accel) / spin2
     return (position + weight * accel_perp / spin2,
-            velocity + weight * np.array(cross3_compiled(spin_w, accel_perp)) / spin2)
+            velocity + weight * np.array(cross3(spin_w, accel_perp)) / spin2)
 
 
 @njit(cache=True)

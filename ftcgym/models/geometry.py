@@ -3,10 +3,9 @@
 Quaternions are (x, y, z, w), scalar last, as in PyBullet and scipy; matrices rotate body vectors into the
 world. Euler angles are ZYX (yaw, pitch, roll), as in the papers: R = Rz(psi) Ry(theta) Rx(phi).
 
-Functions marked `register_jitable` run as plain numpy when called from Python and are compiled into the numba
-code that calls them (the aekf detector's step), with the same bits. The `*_compiled` forms are the same
-functions compiled with numba, for compiled kernels (the controllers' steps): the same source, elementwise
-arithmetic only, so the same bits.
+Functions marked `register_jitable` run as plain Python/numpy when called from Python and are compiled into the
+numba code that calls them (the detectors' and controllers' steps), with the same bits: the same source,
+elementwise arithmetic only.
 """
 from __future__ import annotations
 
@@ -17,6 +16,7 @@ from numba import njit
 from numba.extending import register_jitable
 
 
+@register_jitable
 def cross3(a, b) -> tuple:
     """3-vector cross product a x b as a tuple of floats (the fastest form for plain-float callers)."""
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
@@ -33,6 +33,7 @@ def skew_matrix(a) -> np.ndarray:
     return np.array(((0.0, -a[2], a[1]), (a[2], 0.0, -a[0]), (-a[1], a[0], 0.0)))
 
 
+@register_jitable
 def rotation_matrix(q) -> np.ndarray:
     """Body->world rotation matrix of a unit quaternion (x, y, z, w)."""
     x, y, z, w = q
@@ -73,10 +74,6 @@ def euler_from_quat(q) -> np.ndarray:
     return np.array((math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y)),
                      math.asin(min(max(2 * (w * y - z * x), -1.0), 1.0)),
                      math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))))
-
-
-cross3_compiled = njit(cache=True)(cross3)
-rotation_matrix_compiled = njit(cache=True)(rotation_matrix)
 
 
 @njit(cache=True)

@@ -11,7 +11,7 @@ import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
+from numba.extending import register_jitable
 
 from .checks import NON_NEGATIVE, POSITIVE, Range, no_unknown, numbers
 from .constants import GRAVITY
@@ -31,14 +31,11 @@ def rotor_wrench_matrix(positions, thrust_coefficient: float, torque_coefficient
     return np.vstack([np.full(len(pos), c_t), -c_t * pos[:, 1], c_t * pos[:, 0], c_q * np.asarray(yaw_signs)])
 
 
+@register_jitable
 def rotational_drag_moment(linear: np.ndarray, quadratic: np.ndarray, rates: np.ndarray) -> np.ndarray:
     """Aerodynamic damping moment -(D1 + D2 |w|) w per body axis: linear as 004 eq. (11) and quadratic as
     Sun et al.'s Bebop2 model (simpleAeroModel.m: MDrag = -sign(w) rotDrag w^2)."""
     return -(linear + quadratic * np.abs(rates)) * rates
-
-
-#: the same function compiled, for the controllers' compiled steps (elementwise, so the same bits)
-rotational_drag_moment_compiled = njit(cache=True)(rotational_drag_moment)
 
 
 @dataclass(frozen=True)
