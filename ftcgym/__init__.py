@@ -2,6 +2,7 @@
 import hashlib
 import os
 import shutil
+from functools import partial
 from pathlib import Path
 
 from gymnasium.envs.registration import register, registry
@@ -51,6 +52,14 @@ _ENVS = {
     "ftcgym/RotorLossRecovery-v0": "ftcgym.task_envs.rotor_loss_recovery:RotorLossRecoveryEnv",
     "ftcgym/AirspeedSource-v0": "ftcgym.task_envs.airspeed_source:AirspeedSourceEnv",
 }
+
+
+def _parallel(env_id: str, **kwargs):
+    """The vector entry point of the envs above (`ftcgym.vector.make_parallel`, imported when first used)."""
+    from .vector import make_parallel
+    return make_parallel(env_id, **kwargs)
+
+
 for _id, _entry in _ENVS.items():
     if _id not in registry:
-        register(id=_id, entry_point=_entry)
+        register(id=_id, entry_point=_entry, vector_entry_point=partial(_parallel, _id))

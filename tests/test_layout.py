@@ -10,7 +10,7 @@ import pytest
 PACKAGE = Path(__file__).resolve().parents[1] / "ftcgym"
 #: floor of each part of ftcgym; a module may import from its own part or from a lower floor only
 FLOORS = {"registry": 0, "criteria": 0, "settings": 0, "models": 0,
-          "envs": 1, "fdd": 1,
+          "envs": 1, "fdd": 1, "vector": 1,
           "agents": 2,
           "task_envs": 3,
           "benchmark": 4,

@@ -193,24 +193,49 @@ def _record_flight(env_id: str, steps: int, seed: int):
 VECTOR_KWARGS = {"observation_format": "flat", "info_level": "none"}
 
 
-def vector_scaling(steps: int, seed: int, num_envs: int = 2) -> dict:
-    """Aggregate env steps/s of `gym.make_vec` (sync and async, `num_envs` envs, copy=False) and of one env,
-    random actions, on Quadrotor-v0 with `VECTOR_KWARGS` (resets inside, as autoreset does them)."""
+def vector_scaling(steps: int, seed: int, num_envs: int = 2, rounds: int = 8) -> dict:
+    """Aggregate env steps/s of `gym.make_vec` (sync, async and the parallel vector entry point, `num_envs` envs,
+    copy=False) and of one env, random actions, on Quadrotor-v0 with `VECTOR_KWARGS` (resets inside, as
+    autoreset does them). The four take turns in `rounds` rounds, so a change in the machine's speed hits all
+    alike: rates are medians over the rounds, ratios medians of the ratios within a round."""
     rng = np.random.default_rng(seed)
-    actions = rng.uniform(0.0, 1.0, (steps, num_envs, 4)).astype(np.float32)
-    rates = {"one": measure(QUADROTOR, {**VECTOR_KWARGS, "max_episode_seconds": 30.0}, "random", steps,
-                            seed)["steps_per_s"]}
-    for mode in ("sync", "async"):
-        envs = gym.make_vec(QUADROTOR, num_envs=num_envs, vectorization_mode=mode, vector_kwargs={"copy": False},
-                            **VECTOR_KWARGS)
-        envs.reset(seed=seed)
+    chunk = max(steps // rounds // num_envs, 1)
+    actions = rng.uniform(0.0, 1.0, (chunk, num_envs, 4)).astype(np.float32)
+    one = gym.make(QUADROTOR, **VECTOR_KWARGS)
+    one.reset(seed=seed)
+    envs = {mode: gym.make_vec(QUADROTOR, num_envs=num_envs, vectorization_mode=mode, vector_kwargs={"copy": False},
+                               **VECTOR_KWARGS) for mode in ("sync", "async")}
+    envs["parallel"] = gym.make_vec(QUADROTOR, num_envs=num_envs, vectorization_mode="vector_entry_point",
+                                    copy=False, **VECTOR_KWARGS)
+    for vector_env in envs.values():
+        vector_env.reset(seed=seed)
+
+    def one_env() -> float:
         start = time.perf_counter()
-        for i in range(steps // num_envs):
-            envs.step(actions[i])
-        rates[mode] = (steps // num_envs) * num_envs / (time.perf_counter() - start)
-        envs.close()
-    return {"num_envs": num_envs, "env_kwargs": VECTOR_KWARGS, "steps_per_s": rates,
-            "ratio_to_one_env": {mode: rates[mode] / rates["one"] for mode in ("sync", "async")}}
+        for action in actions.reshape(-1, 4):
+            _, _, terminated, truncated, _ = one.step(action)
+            if terminated or truncated:
+                one.reset()
+        return actions.shape[0] * num_envs / (time.perf_counter() - start)
+
+    def vector(mode: str) -> float:
+        start = time.perf_counter()
+        for batch in actions:
+            envs[mode].step(batch)
+        return actions.shape[0] * num_envs / (time.perf_counter() - start)
+
+    samples = {mode: [] for mode in ("one", *envs)}
+    for _ in range(rounds):
+        samples["one"].append(one_env())
+        for mode in envs:
+            samples[mode].append(vector(mode))
+    one.close()
+    for vector_env in envs.values():
+        vector_env.close()
+    ratios = {mode: float(np.median(np.array(samples[mode]) / samples["one"])) for mode in envs}
+    return {"num_envs": num_envs, "env_kwargs": VECTOR_KWARGS, "rounds": rounds,
+            "steps_per_s": {mode: float(np.median(rates)) for mode, rates in samples.items()},
+            "ratio_to_one_env": ratios}
 
 
 def machine() -> dict:
@@ -273,8 +298,10 @@ def run(args, argv: list[str] | None = None) -> int:
         verdict = "under" if c["update_us"] < DETECTOR_BUDGET_US else "OVER"
         print(f"  {name:17} {c['update_us']:8.1f} {c['step_us']:16.1f}  {verdict}")
     rates = vector["steps_per_s"]
+    ratios = vector["ratio_to_one_env"]
     print(f"\nvector envs: gym.make_vec({QUADROTOR!r}, num_envs={vector['num_envs']}, copy=False) with "
-          f"{VECTOR_KWARGS}, aggregate env steps/s:\n  one env {rates['one']:.0f}, sync {rates['sync']:.0f} "
-          f"({vector['ratio_to_one_env']['sync']:.2f}x), async {rates['async']:.0f} "
-          f"({vector['ratio_to_one_env']['async']:.2f}x)")
+          f"{VECTOR_KWARGS}, aggregate env steps/s (median of {vector['rounds']} interleaved rounds):\n"
+          f"  one env {rates['one']:.0f}, sync {rates['sync']:.0f} ({ratios['sync']:.2f}x), async "
+          f"{rates['async']:.0f} ({ratios['async']:.2f}x), parallel (vector entry point) {rates['parallel']:.0f} "
+          f"({ratios['parallel']:.2f}x)")
     return 0

@@ -1,0 +1,416 @@
+"""`ParallelVectorEnv`: a Gymnasium vector env whose envs step on every core, meeting through shared memory.
+
+Gymnasium's `AsyncVectorEnv` sends each step's actions and results through a pipe per worker and sleeps on it:
+the round trip (about 100 us on a 2-core machine, process wake-ups included) costs more than a whole ftcgym
+step, so two async envs step slower than one env alone (docs/performance.md). Here the calling process steps a
+share of the envs itself while each worker process steps its own share, in lockstep. Actions, observations,
+rewards and flags live in shared memory, and each side waits for the other by polling a semaphore (no system
+call) for `spin_seconds` before it sleeps on it: a step costs the slowest share plus a few microseconds, and a
+long pause (a policy update) does not keep a core busy. An `info` travels through a pipe, and only when an env
+returned a non-empty one (`info_level="none"` sends nothing).
+
+The semantics are those of `gymnasium.vector.SyncVectorEnv`: the autoreset modes next-step (the default) and
+same-step, the same batched `info`, the same observations for the same seeds. Workers default to one per core
+beyond the caller's, at most one per env beyond the first; `workers=0` steps everything in this process.
+
+Every ftcgym env has it as its vector entry point (`make_parallel`):
+`gym.make_vec("ftcgym/Quadrotor-v0", num_envs=N, vectorization_mode="vector_entry_point", workers=..., ...)`.
+"""
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import time
+import traceback
+from copy import deepcopy
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import (
+    CloudpickleWrapper,
+    batch_space,
+    create_shared_memory,
+    read_from_shared_memory,
+    write_to_shared_memory,
+)
+
+#: the commands a worker reads from its slot of `_Shared.command` when woken
+STEP, RESET, CALL, CLOSE = range(4)
+#: how long a waiting side polls before it sleeps (s): longer than a step, shorter than a policy update
+SPIN_SECONDS = 0.002
+#: the keywords of `make_parallel` that are the vector env's own (the rest build each env)
+VECTOR_KEYWORDS = ("workers", "autoreset_mode", "copy", "spin_seconds", "context")
+
+
+class ParallelVectorEnv(VectorEnv):
+    """`num_envs` envs stepped in lockstep by this process and `workers` worker processes (module docstring).
+
+    `env_fns`: callables that each build one env. `workers`: worker processes (None: one per core beyond this
+    one's, at most num_envs - 1). `autoreset_mode`: an `AutoresetMode` (or its value), NEXT_STEP (Gymnasium's
+    default) or SAME_STEP. `copy`: return copies of the batched observations (False: views that the next step
+    overwrites). `context`: the multiprocessing start method (None: the platform's default).
+    """
+
+    def __init__(self, env_fns, workers: int | None = None,
+                 autoreset_mode: str | AutoresetMode = AutoresetMode.NEXT_STEP, copy: bool = True,
+                 spin_seconds: float = SPIN_SECONDS, context: str | None = None):
+        self.closed = True
+        env_fns = list(env_fns)
+        if not env_fns:
+            raise ValueError("ParallelVectorEnv: env_fns is empty; give at least one env-building callable")
+        self.autoreset_mode = _autoreset_mode(autoreset_mode)
+        self.num_envs, self.copy, self.spin_seconds = len(env_fns), bool(copy), float(spin_seconds)
+        workers = _worker_count(workers, self.num_envs)
+        bounds = np.linspace(0, self.num_envs, workers + 2).round().astype(int)
+        self._shares = [range(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
+        own = self._shares[0]
+        self._own = _Share([env_fns[k] for k in own], own, self.autoreset_mode)
+        first = self._own.envs[0]
+        self.metadata = {**first.metadata, "autoreset_mode": self.autoreset_mode}
+        self.render_mode, self.spec = first.render_mode, first.spec
+        self.single_observation_space, self.single_action_space = first.observation_space, first.action_space
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        ctx = mp.get_context(context)
+        self._shared = _Shared(ctx, self.single_observation_space, self.single_action_space, self.num_envs, workers)
+        self._observations = read_from_shared_memory(self.single_observation_space, self._shared.observations,
+                                                     self.num_envs)
+        self._workers = []
+        try:
+            for w, share in enumerate(self._shares[1:]):
+                self._workers.append(_Worker.start(ctx, w, [env_fns[k] for k in share], share, self._shared,
+                                                   self.autoreset_mode, self.spin_seconds))
+            self.closed = False
+            self._gather()                # each worker answers once its envs are built
+        except BaseException:
+            self.closed = False
+            self.close()
+            raise
+
+    # ------------------------------------------------------------------ the Gymnasium API
+    def reset(self, *, seed: int | list | None = None, options: dict | None = None):
+        """Reset every env: `seed` an int (env i gets seed + i), a list of one per env, or None."""
+        self._check_open("reset")
+        seeds = _seeds(seed, self.num_envs)
+        for worker, share in zip(self._workers, self._shares[1:]):
+            worker.order(RESET, ([seeds[k] for k in share], options))
+        infos = self._gather(self._merge({}, self._own.reset([seeds[k] for k in self._shares[0]], options,
+                                                             self._shared), 0))
+        return self._observations_out(), infos
+
+    def step(self, actions):
+        self._check_open("step")
+        actions = np.asarray(actions) if isinstance(self.single_action_space, spaces.Box) else actions
+        for k in range(self.num_envs):
+            write_to_shared_memory(self.single_action_space, k, _item(self.single_action_space, actions, k),
+                                   self._shared.actions)
+        for worker in self._workers:
+            worker.order(STEP)
+        infos = self._gather(self._merge({}, self._own.step(self._shared), 0))
+        s = self._shared
+        return self._observations_out(), s.rewards.copy(), s.terminations.copy(), s.truncations.copy(), infos
+
+    def call(self, name: str, *args, **kwargs) -> tuple:
+        """`getattr(env, name)` of every env, called with the arguments where it is callable."""
+        self._check_open("call")
+        for worker in self._workers:
+            worker.order(CALL, (name, args, kwargs))
+        results = self._own.call(name, args, kwargs)
+        for worker in self._workers:
+            results.extend(worker.answer(self._shared, self.spin_seconds) or [])
+        return tuple(results)
+
+    def get_attr(self, name: str) -> tuple:
+        return self.call(name)
+
+    def set_attr(self, name: str, values) -> None:
+        """Set `name` on every env: one value for all, or a list or tuple of one per env."""
+        self._check_open("set_attr")
+        values = list(values) if isinstance(values, list | tuple) else [values] * self.num_envs
+        if len(values) != self.num_envs:
+            raise ValueError(f"ParallelVectorEnv.set_attr: {len(values)} values; accepted: one value or "
+                             f"{self.num_envs}")
+        for worker, share in zip(self._workers, self._shares[1:]):
+            worker.order(CALL, ("__setattr__", (name, [values[k] for k in share]), {}))
+        self._own.call("__setattr__", (name, [values[k] for k in self._shares[0]]), {})
+        for worker in self._workers:
+            worker.answer(self._shared, self.spin_seconds)
+
+    def close_extras(self, **kwargs) -> None:
+        if self.closed:
+            return
+        self.closed = True
+        for worker in self._workers:
+            worker.stop()
+        self._own.close()
+
+    # ------------------------------------------------------------------ internals
+    def _check_open(self, what: str) -> None:
+        if self.closed:
+            raise RuntimeError(f"ParallelVectorEnv.{what} after close()")
+
+    def _observations_out(self):
+        return deepcopy(self._observations) if self.copy else self._observations
+
+    def _merge(self, infos: dict, env_infos: list, start: int) -> dict:
+        for i, info in enumerate(env_infos):
+            if info:
+                infos = self._add_info(infos, info, start + i)
+        return infos
+
+    def _gather(self, infos: dict | None = None) -> dict:
+        """Wait for every worker and merge the infos it sent (a worker's error is raised here)."""
+        infos = {} if infos is None else infos
+        for worker, share in zip(self._workers, self._shares[1:]):
+            infos = self._merge(infos, worker.answer(self._shared, self.spin_seconds) or [], share.start)
+        return infos
+
+
+def make_parallel(env_id: str, num_envs: int = 1, **kwargs) -> ParallelVectorEnv:
+    """A `ParallelVectorEnv` of `num_envs` `gym.make(env_id, **kwargs)` envs; the keywords of
+    `VECTOR_KEYWORDS` go to the vector env. The vector entry point of every ftcgym env."""
+    vector = {key: kwargs.pop(key) for key in VECTOR_KEYWORDS if key in kwargs}
+    return ParallelVectorEnv([_EnvMaker(env_id, kwargs)] * num_envs, **vector)
+
+
+class _EnvMaker:
+    """`gym.make(env_id, **kwargs)` as a picklable callable."""
+
+    def __init__(self, env_id: str, kwargs: dict):
+        self.env_id, self.kwargs = env_id, kwargs
+
+    def __call__(self) -> gym.Env:
+        import ftcgym  # noqa: F401 - registers the env ids in a freshly spawned worker
+        return gym.make(self.env_id, **self.kwargs)
+
+
+def _autoreset_mode(mode) -> AutoresetMode:
+    accepted = (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP)
+    try:
+        mode = AutoresetMode(mode)
+    except ValueError:
+        mode = None
+    if mode not in accepted:
+        raise ValueError(f"ParallelVectorEnv: autoreset_mode; accepted: {[m.value for m in accepted]}")
+    return mode
+
+
+def _worker_count(workers, num_envs: int) -> int:
+    if workers is None:
+        return min(max((os.cpu_count() or 1) - 1, 0), num_envs - 1)
+    if isinstance(workers, bool) or not isinstance(workers, int | np.integer) or not 0 <= workers < num_envs:
+        raise ValueError(f"ParallelVectorEnv: workers={workers!r}; accepted: None or an int from 0 to "
+                         f"num_envs - 1 = {num_envs - 1}")
+    return int(workers)
+
+
+def _seeds(seed, num_envs: int) -> list:
+    if seed is None or (isinstance(seed, int | np.integer) and not isinstance(seed, bool)):
+        return [None if seed is None else int(seed) + k for k in range(num_envs)]
+    seeds = list(seed)
+    if len(seeds) != num_envs:
+        raise ValueError(f"ParallelVectorEnv.reset: seed has {len(seeds)} entries; accepted: an int, None or "
+                         f"a list of one per env ({num_envs})")
+    return seeds
+
+
+def _item(space, batch, k: int):
+    """Entry k of a batch of `space` (Dict and Tuple batches are dicts and tuples of batches)."""
+    if isinstance(space, spaces.Dict):
+        return {key: _item(sub, batch[key], k) for key, sub in space.spaces.items()}
+    if isinstance(space, spaces.Tuple):
+        return tuple(_item(sub, part, k) for sub, part in zip(space.spaces, batch))
+    return batch[k]
+
+
+class _Shared:
+    """What the processes share: the batched actions and observations, rewards, flags, a command slot per worker
+    and the semaphores each side waits on."""
+
+    def __init__(self, ctx, observation_space, action_space, num_envs: int, workers: int):
+        self.observation_space, self.action_space, self.num_envs = observation_space, action_space, num_envs
+        self.observations = create_shared_memory(observation_space, num_envs, ctx)
+        self.actions = create_shared_memory(action_space, num_envs, ctx)
+        self._numbers = ctx.RawArray("d", num_envs)
+        self._flags = ctx.RawArray("b", 2 * num_envs)
+        self._commands = ctx.RawArray("b", 2 * max(workers, 1))   # per worker: the command, whether it answered
+        self.go = [ctx.Semaphore(0) for _ in range(workers)]
+        self.done = [ctx.Semaphore(0) for _ in range(workers)]
+        self._views()
+
+    def _views(self) -> None:
+        self.action_view = read_from_shared_memory(self.action_space, self.actions, self.num_envs)
+        self.rewards = np.frombuffer(self._numbers, dtype=np.float64)
+        flags = np.frombuffer(self._flags, dtype=np.bool_)
+        self.terminations, self.truncations = flags[:self.num_envs], flags[self.num_envs:]
+        slots = np.frombuffer(self._commands, dtype=np.int8)
+        self.command, self.answered = slots[0::2], slots[1::2]
+
+    def __getstate__(self):      # to a spawned worker: the shared buffers, not the numpy views of them
+        views = ("action_view", "rewards", "terminations", "truncations", "command", "answered")
+        return {key: value for key, value in self.__dict__.items() if key not in views}
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._views()
+
+
+class _Share:
+    """The envs one process steps (`indices` of the batch), with SyncVectorEnv's autoreset rules; the results
+    go to the shared memory, the infos are returned."""
+
+    def __init__(self, env_fns, indices: range, autoreset_mode: AutoresetMode):
+        self.envs, self.indices, self.autoreset_mode = [], indices, autoreset_mode
+        for fn in env_fns:
+            self.envs.append(fn())
+        self._needs_reset = [False] * len(self.envs)
+
+    def reset(self, seeds, options, shared: _Shared) -> list:
+        infos = []
+        for i, (k, env) in enumerate(zip(self.indices, self.envs)):
+            obs, info = env.reset(seed=seeds[i], options=options)
+            self._needs_reset[i] = False
+            self._write(shared, k, obs, 0.0, False, False)
+            infos.append(info)
+        return infos
+
+    def step(self, shared: _Shared) -> list:
+        infos = []
+        for i, (k, env) in enumerate(zip(self.indices, self.envs)):
+            if self._needs_reset[i]:          # next-step autoreset: this step only resets
+                obs, info = env.reset()
+                reward, terminated, truncated = 0.0, False, False
+            else:
+                action = _item(shared.action_space, shared.action_view, k)
+                obs, reward, terminated, truncated, info = env.step(action)
+                if (terminated or truncated) and self.autoreset_mode == AutoresetMode.SAME_STEP:
+                    final = {"final_obs": obs, "final_info": info}
+                    obs, info = env.reset()
+                    info = {**info, **final}
+            self._needs_reset[i] = self.autoreset_mode == AutoresetMode.NEXT_STEP and (terminated or truncated)
+            self._write(shared, k, obs, reward, terminated, truncated)
+            infos.append(info)
+        return infos
+
+    @staticmethod
+    def _write(shared: _Shared, k: int, obs, reward, terminated, truncated) -> None:
+        write_to_shared_memory(shared.observation_space, k, obs, shared.observations)
+        shared.rewards[k], shared.terminations[k], shared.truncations[k] = reward, terminated, truncated
+
+    def call(self, name: str, args, kwargs) -> list:
+        if name == "__setattr__":
+            attribute, values = args
+            for env, value in zip(self.envs, values):
+                env.set_wrapper_attr(attribute, value)
+            return [None] * len(self.envs)
+        results = []
+        for env in self.envs:
+            attribute = env.get_wrapper_attr(name)
+            results.append(attribute(*args, **kwargs) if callable(attribute) else attribute)
+        return results
+
+    def close(self) -> None:
+        for env in self.envs:
+            env.close()
+
+
+class _Worker:
+    """The calling side of one worker process: wake it with a command, wait for its answer."""
+
+    def __init__(self, index: int, process, pipe, go, done, shared: _Shared):
+        self.index, self.process, self.pipe, self.go, self.done, self.shared = index, process, pipe, go, done, shared
+
+    @classmethod
+    def start(cls, ctx, index: int, env_fns, share: range, shared: _Shared, autoreset_mode, spin_seconds):
+        pipe, child = ctx.Pipe()
+        process = ctx.Process(target=_work, daemon=True, name=f"ftcgym-vector-worker-{index + 1}",
+                              args=(index, CloudpickleWrapper(env_fns), share, shared, child, autoreset_mode,
+                                    spin_seconds, os.getpid()))
+        process.start()
+        child.close()
+        return cls(index, process, pipe, shared.go[index], shared.done[index], shared)
+
+    def order(self, command: int, payload=None) -> None:
+        self.shared.command[self.index] = command
+        if payload is not None:
+            self.pipe.send(payload)
+        self.go.release()
+
+    def answer(self, shared: _Shared, spin_seconds: float):
+        """What the worker sent (infos or results), None if nothing; raises what it raised."""
+        if not _wait(self.done, spin_seconds, self.process.is_alive):
+            raise RuntimeError(f"ParallelVectorEnv: worker process {self.index + 1} died "
+                               f"(exit code {self.process.exitcode})")
+        if not shared.answered[self.index]:
+            return None
+        shared.answered[self.index] = 0
+        kind, value = self.pipe.recv()
+        if kind == "error":
+            raise RuntimeError(f"ParallelVectorEnv worker {self.index + 1} raised:\n{value}")
+        return value
+
+    def stop(self) -> None:
+        if self.process.is_alive():
+            self.order(CLOSE)
+            self.process.join(timeout=5.0)
+        if self.process.is_alive():
+            self.process.terminate()
+            self.process.join(timeout=1.0)
+        self.pipe.close()
+
+
+def _wait(semaphore, spin_seconds: float, alive) -> bool:
+    """Acquire `semaphore`: poll it (no system call) for spin_seconds, then sleep on it, asking `alive()` every
+    half second whether the other side is still there; False if it is gone."""
+    if semaphore.acquire(False):
+        return True
+    deadline = time.perf_counter() + spin_seconds
+    while time.perf_counter() < deadline:
+        if semaphore.acquire(False):
+            return True
+    while not semaphore.acquire(timeout=0.5):
+        if not alive():
+            return False
+    return True
+
+
+def _work(index: int, env_fns, share: range, shared: _Shared, pipe, autoreset_mode, spin_seconds, parent: int):
+    """A worker process: build its envs and answer, then run the calling process's commands until CLOSE."""
+    go, done = shared.go[index], shared.done[index]
+
+    def answer(kind: str, value) -> None:
+        pipe.send((kind, value))
+        shared.answered[index] = 1
+
+    envs = None
+    try:
+        envs = _Share(env_fns.fn, share, autoreset_mode)
+    except Exception:  # noqa: BLE001 - sent to the calling process, which raises it
+        answer("error", traceback.format_exc())
+    done.release()
+    while envs is not None:
+        if not _wait(go, spin_seconds, lambda: os.getppid() == parent):
+            break                        # the calling process is gone
+        command = int(shared.command[index])
+        if command == CLOSE:
+            break
+        try:
+            if command == STEP:
+                infos = envs.step(shared)
+            elif command == RESET:
+                seeds, options = pipe.recv()
+                infos = envs.reset(seeds, options, shared)
+            else:
+                name, args, kwargs = pipe.recv()
+                answer("result", envs.call(name, args, kwargs))
+                infos = []
+            if any(infos):
+                answer("infos", infos)
+        except Exception:  # noqa: BLE001 - sent to the calling process, which raises it
+            answer("error", traceback.format_exc())
+        done.release()
+    if envs is not None:
+        envs.close()
+    pipe.close()

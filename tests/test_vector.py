@@ -1,0 +1,123 @@
+"""ParallelVectorEnv: SyncVectorEnv's results, step for step, from envs split over processes; clear errors."""
+import os
+import signal
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.vector import AutoresetMode, SyncVectorEnv
+
+import ftcgym  # noqa: F401
+from ftcgym.vector import ParallelVectorEnv, make_parallel
+
+QUADROTOR = "ftcgym/Quadrotor-v0"
+#: random actions crash the vehicle within a second or two: every episode end and autoreset is exercised
+FAST = {"agent_hz": 50.0, "max_episode_seconds": 3.0}
+
+
+def assert_same(a, b, where=""):
+    """Equal to the bit: arrays, dicts of them and nested infos."""
+    if isinstance(a, dict):
+        assert set(a) == set(b), f"{where}: keys {sorted(set(a) ^ set(b))}"
+        for key in a:
+            assert_same(a[key], b[key], f"{where}/{key}")
+    elif isinstance(a, tuple | list):
+        assert len(a) == len(b), where
+        for i, (x, y) in enumerate(zip(a, b)):
+            assert_same(x, y, f"{where}[{i}]")
+    elif isinstance(a, np.ndarray) and a.dtype == object:
+        assert a.shape == b.shape, where
+        for i, (x, y) in enumerate(zip(a, b)):
+            assert_same(x, y, f"{where}[{i}]")
+    else:
+        assert np.array_equal(np.asarray(a), np.asarray(b)), f"{where}: {a} != {b}"
+
+
+def fly_both(mode, num_envs=3, workers=2, steps=150, **kwargs):
+    """Sync and parallel vector envs side by side with the same seeds and actions; returns the episode ends."""
+    fns = [lambda: gym.make(QUADROTOR, **FAST, **kwargs)] * num_envs
+    sync = SyncVectorEnv(fns, autoreset_mode=mode)
+    parallel = ParallelVectorEnv(fns, workers=workers, autoreset_mode=mode)
+    try:
+        assert_same(sync.reset(seed=7), parallel.reset(seed=7), "reset")
+        rng = np.random.default_rng(1)
+        ends = 0
+        for t in range(steps):
+            actions = rng.uniform(0.0, 1.0, (num_envs, 4)).astype(np.float32)
+            expected, got = sync.step(actions), parallel.step(actions)
+            assert_same(expected, got, f"step {t}")
+            ends += int(expected[2].sum() + expected[3].sum())
+        return ends
+    finally:
+        sync.close()
+        parallel.close()
+
+
+@pytest.mark.parametrize("mode", [AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP])
+def test_matches_sync_vector_env_through_crashes_and_autoresets(mode):
+    assert fly_both(mode) >= 6          # every env ended at least twice
+
+
+def test_flat_observations_without_info_match_too():
+    assert fly_both(AutoresetMode.NEXT_STEP, num_envs=2, workers=1, observation_format="flat",
+                    info_level="none") >= 4
+
+
+def test_in_process_only_and_make_vec_default():
+    envs = gym.make_vec(QUADROTOR, num_envs=2, workers=0, **FAST)
+    try:
+        assert isinstance(envs, ParallelVectorEnv) and envs._workers == []
+        obs, _ = envs.reset(seed=0)
+        assert obs["position"].shape == (2, 3)
+        obs, reward, *_ = envs.step(np.full((2, 4), 0.6, dtype=np.float32))
+        assert reward.shape == (2,) and np.all(np.isfinite(obs["gyro"]))
+    finally:
+        envs.close()
+
+
+def test_attributes_across_processes():
+    envs = make_parallel(QUADROTOR, num_envs=3, workers=2, **FAST)
+    try:
+        assert envs.get_attr("physics_hz") == (500.0, 500.0, 500.0)
+        envs.set_attr("info_level", ["none", "full", "none"])
+        assert envs.get_attr("info_level") == ("none", "full", "none")
+        envs.reset(seed=0)
+        _, _, _, _, info = envs.step(np.full((3, 4), 0.6, dtype=np.float32))
+        assert list(info["_time"]) == [False, True, False]      # only env 1 still reports
+    finally:
+        envs.close()
+
+
+class RaisesAtStep(gym.Wrapper):
+    def step(self, action):
+        raise ArithmeticError("deliberate failure in step")
+
+
+def test_errors_are_raised_in_the_calling_process():
+    with pytest.raises(ValueError, match="workers=3; accepted"):
+        make_parallel(QUADROTOR, num_envs=3, workers=3)
+    with pytest.raises(ValueError, match="autoreset_mode; accepted"):
+        make_parallel(QUADROTOR, num_envs=2, autoreset_mode="Disabled")
+    with pytest.raises(RuntimeError, match="worker 1 raised:(.|\n)*unknown"):
+        ParallelVectorEnv([lambda: gym.make(QUADROTOR), lambda: gym.make(QUADROTOR, vehical="bebop2")], workers=1)
+    envs = ParallelVectorEnv([lambda: gym.make(QUADROTOR), lambda: RaisesAtStep(gym.make(QUADROTOR))], workers=1)
+    try:
+        envs.reset(seed=0)
+        with pytest.raises(RuntimeError, match="worker 1 raised:(.|\n)*deliberate failure"):
+            envs.step(np.full((2, 4), 0.6, dtype=np.float32))
+    finally:
+        envs.close()
+    with pytest.raises(RuntimeError, match="step after close"):
+        envs.step(np.full((2, 4), 0.6, dtype=np.float32))
+
+
+def test_a_dead_worker_is_an_error_not_a_hang():
+    envs = make_parallel(QUADROTOR, num_envs=2, workers=1)
+    try:
+        envs.reset(seed=0)
+        os.kill(envs._workers[0].process.pid, signal.SIGKILL)
+        envs._workers[0].process.join(timeout=5.0)
+        with pytest.raises(RuntimeError, match="died"):
+            envs.step(np.full((2, 4), 0.6, dtype=np.float32))
+    finally:
+        envs.close()
