@@ -92,15 +92,24 @@ class ParallelVectorEnv(VectorEnv):
     # ------------------------------------------------------------------ the Gymnasium API
     def reset(self, *, seed: int | list | None = None, options: dict | None = None):
         """Reset every env: `seed` an int (env i gets seed + i), a list of one per env, or None."""
+        obs, infos = self.reset_each(seed=seed, options=options)
+        return obs, self._batched(infos)
+
+    def step(self, actions):
+        obs, rewards, terminations, truncations, infos = self.step_each(actions)
+        return obs, rewards, terminations, truncations, self._batched(infos)
+
+    def reset_each(self, *, seed: int | list | None = None, options: dict | None = None):
+        """`reset` with the infos as a list, one dict per env (Stable-Baselines3's form)."""
         self._check_open("reset")
         seeds = _seeds(seed, self.num_envs)
         for worker, share in zip(self._workers, self._shares[1:]):
             worker.order(RESET, ([seeds[k] for k in share], options))
-        infos = self._gather(self._merge({}, self._own.reset([seeds[k] for k in self._shares[0]], options,
-                                                             self._shared), 0))
-        return self._observations_out(), infos
+        infos = self._gather(self._own.reset([seeds[k] for k in self._shares[0]], options, self._shared))
+        return self._observations_out(), infos      # after the workers answered: their observations are in
 
-    def step(self, actions):
+    def step_each(self, actions):
+        """`step` with the infos as a list, one dict per env (Stable-Baselines3's form)."""
         self._check_open("step")
         actions = np.asarray(actions) if isinstance(self.single_action_space, spaces.Box) else actions
         for k in range(self.num_envs):
@@ -108,12 +117,13 @@ class ParallelVectorEnv(VectorEnv):
                                    self._shared.actions)
         for worker in self._workers:
             worker.order(STEP)
-        infos = self._gather(self._merge({}, self._own.step(self._shared), 0))
+        infos = self._gather(self._own.step(self._shared))
         s = self._shared
         return self._observations_out(), s.rewards.copy(), s.terminations.copy(), s.truncations.copy(), infos
 
-    def call(self, name: str, *args, **kwargs) -> tuple:
-        """`getattr(env, name)` of every env, called with the arguments where it is callable."""
+    def call(self, name, *args, **kwargs) -> tuple:
+        """`getattr(env, name)` of every env, called with the arguments where it is callable; `name` may also
+        be a picklable function, called as name(env, *args, **kwargs)."""
         self._check_open("call")
         for worker in self._workers:
             worker.order(CALL, (name, args, kwargs))
@@ -154,17 +164,20 @@ class ParallelVectorEnv(VectorEnv):
     def _observations_out(self):
         return deepcopy(self._observations) if self.copy else self._observations
 
-    def _merge(self, infos: dict, env_infos: list, start: int) -> dict:
-        for i, info in enumerate(env_infos):
+    def _batched(self, env_infos: list) -> dict:
+        """Gymnasium's batched info of the per-env infos."""
+        infos = {}
+        for k, info in enumerate(env_infos):
             if info:
-                infos = self._add_info(infos, info, start + i)
+                infos = self._add_info(infos, info, k)
         return infos
 
-    def _gather(self, infos: dict | None = None) -> dict:
-        """Wait for every worker and merge the infos it sent (a worker's error is raised here)."""
-        infos = {} if infos is None else infos
+    def _gather(self, own: list | None = None) -> list:
+        """Wait for every worker; the infos of every env, this process's `own` first (empty where a worker
+        sent none). A worker's error is raised here."""
+        infos = list(own or [])
         for worker, share in zip(self._workers, self._shares[1:]):
-            infos = self._merge(infos, worker.answer(self._shared, self.spin_seconds) or [], share.start)
+            infos.extend(worker.answer(self._shared, self.spin_seconds) or [{}] * len(share))
         return infos
 
 
@@ -307,6 +320,9 @@ class _Share:
             return [None] * len(self.envs)
         results = []
         for env in self.envs:
+            if callable(name):
+                results.append(name(env, *args, **kwargs))
+                continue
             attribute = env.get_wrapper_attr(name)
             results.append(attribute(*args, **kwargs) if callable(attribute) else attribute)
         return results

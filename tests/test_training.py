@@ -67,7 +67,8 @@ def test_config_names_the_activation_and_rejects_an_unknown_one(tmp_path):
 
 
 @pytest.mark.parametrize(("vec_env", "n_envs", "expected"), [("auto", 1, "DummyVecEnv"), ("auto", 2, "SubprocVecEnv"),
-                                                         ("dummy", 2, "DummyVecEnv"), ("subproc", 1, "SubprocVecEnv")])
+                                                         ("dummy", 2, "DummyVecEnv"), ("subproc", 1, "SubprocVecEnv"),
+                                                         ("parallel", 2, "ParallelVecEnv")])
 def test_vec_env_picks_sb3s_vector_env(tmp_path, vec_env, n_envs, expected):
     from ftcgym.training.train import build_vec_env
     document = yaml.safe_load(_config(tmp_path, n_envs=n_envs).read_text())
@@ -86,7 +87,7 @@ def test_vec_env_is_validated(tmp_path):
     document["rotor-loss-recovery"]["vec_env"] = "threads"
     path = tmp_path / "bad.yaml"
     path.write_text(yaml.safe_dump(document))
-    with pytest.raises(ValueError, match=r"vec_env: 'threads'; accepted: \['auto', 'subproc', 'dummy'\]"):
+    with pytest.raises(ValueError, match=r"vec_env: 'threads'; accepted: \['auto', 'subproc', 'dummy', 'parallel'\]"):
         load_config(str(path))
 
 

@@ -7,7 +7,7 @@
       default_algo: PPO
       checkpoint_freq: 100000               # env steps
       torch_threads: 1                      # torch.set_num_threads for the updates
-      vec_env: auto                         # subproc (a process per env), dummy (all in this process), or auto
+      vec_env: auto                         # subproc (process per env), dummy (in this process), parallel, auto
       eval: {scenario: quad-rotor-loss-hover, episodes: 4, freq: 50000, env_kwargs: {}}
       pretrain: {method: dagger, env_kwargs: {expert: true}, ...}   # imitation first (imitation.DaggerSettings)
       PPO:                                  # one section per algorithm
@@ -38,9 +38,10 @@ from ftcgym.benchmark.sweep import read_yaml
 CONFIG_DIR = Path(__file__).with_name("configs")
 ALGOS = ("PPO", "SAC")
 #: `vec_env`: SB3's SubprocVecEnv ("subproc", one process per env), DummyVecEnv ("dummy", the envs stepped in turn
-#: in the learner's process), or "auto": subproc for more than one env. A step through a process pipe costs about
-#: 100 us on a 2-core machine, so subproc pays only where an env step costs much more (docs/performance.md).
-VEC_ENVS = ("auto", "subproc", "dummy")
+#: in the learner's process), `ftcgym.training.vec_env.ParallelVecEnv` ("parallel", the envs on every core through
+#: shared memory), or "auto": subproc for more than one env. A step through a process pipe costs about 100 us on
+#: a 2-core machine, so subproc pays only where an env step costs much more (docs/performance.md).
+VEC_ENVS = ("auto", "subproc", "dummy", "parallel")
 SECTION_KEYS = ("n_envs", "n_timesteps", "policy", "normalize", "policy_kwargs")
 #: `policy_kwargs.activation_fn` by name (RL Zoo writes the class, `nn.ReLU`; YAML keeps to plain data).
 ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "LeakyReLU", "silu": "SiLU"}

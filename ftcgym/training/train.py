@@ -1,9 +1,9 @@
 """`train(config, out)`: one Stable-Baselines3 run of a task config.
 
 Builds `n_envs` copies of the config's env (the config's `vec_env`: by default SubprocVecEnv for more than
-one, DummyVecEnv for one; each in a Monitor), VecNormalize, the algorithm, and callbacks: checkpoints (with
-VecNormalize statistics), the benchmark-metric evaluation, a progress bar. TensorBoard logs go to OUT/tb when
-tensorboard is installed.
+one, DummyVecEnv for one; or ParallelVecEnv; each in a Monitor), VecNormalize, the algorithm, and callbacks:
+checkpoints (with VecNormalize statistics), the benchmark-metric evaluation, a progress bar. TensorBoard logs go
+to OUT/tb when tensorboard is installed.
 Writes to OUT:
 
     model.zip, vecnormalize.pkl     the final model and its observation/reward normalisation
@@ -70,10 +70,13 @@ def build_vec_env(config: TrainConfig, extra_kwargs: dict | None = None, normali
     """The config's vectorised (and, if asked, normalised) training env, seeded with config.seed."""
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
 
+    from .vec_env import ParallelVecEnv
+
     factory = functools.partial(make_env, config.env_id, {**config.env_kwargs, **(extra_kwargs or {})},
                                 config.wrappers)
     subproc = config.vec_env == "subproc" or (config.vec_env == "auto" and config.n_envs > 1)
-    vec_cls = SubprocVecEnv if subproc else DummyVecEnv
+    vec_cls = {"parallel": ParallelVecEnv, "dummy": DummyVecEnv}.get(config.vec_env,
+                                                                       SubprocVecEnv if subproc else DummyVecEnv)
     venv = vec_cls([factory] * config.n_envs)
     venv.seed(config.seed)
     if config.normalize and normalize:
