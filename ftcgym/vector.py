@@ -33,7 +33,6 @@ from gymnasium.vector.utils import (
     batch_space,
     create_shared_memory,
     read_from_shared_memory,
-    write_to_shared_memory,
 )
 
 #: the commands a worker reads from its slot of `_Shared.command` when woken
@@ -111,10 +110,7 @@ class ParallelVectorEnv(VectorEnv):
     def step_each(self, actions):
         """`step` with the infos as a list, one dict per env (Stable-Baselines3's form)."""
         self._check_open("step")
-        actions = np.asarray(actions) if isinstance(self.single_action_space, spaces.Box) else actions
-        for k in range(self.num_envs):
-            write_to_shared_memory(self.single_action_space, k, _item(self.single_action_space, actions, k),
-                                   self._shared.actions)
+        _copy_batch(self.single_action_space, self._shared.action_view, actions)
         for worker in self._workers:
             worker.order(STEP)
         infos = self._gather(self._own.step(self._shared))
@@ -229,6 +225,40 @@ def _seeds(seed, num_envs: int) -> list:
     return seeds
 
 
+def _copy_batch(space, view, batch) -> None:
+    """Copy a batch of `space` into its shared view (Dict and Tuple batches are dicts and tuples of batches)."""
+    if isinstance(space, spaces.Dict):
+        for key, sub in space.spaces.items():
+            _copy_batch(sub, view[key], batch[key])
+    elif isinstance(space, spaces.Tuple):
+        for sub, part, value in zip(space.spaces, view, batch):
+            _copy_batch(sub, part, value)
+    else:
+        view[...] = batch
+
+
+def _writer(space, view, k: int):
+    """A function that writes a value of `space` into entry k of its shared batch view."""
+    if isinstance(space, spaces.Dict):
+        parts = [(key, _writer(sub, view[key], k)) for key, sub in space.spaces.items()]
+
+        def write(value):
+            for key, part in parts:
+                part(value[key])
+        return write
+    if isinstance(space, spaces.Tuple):
+        parts = [_writer(sub, part, k) for sub, part in zip(space.spaces, view)]
+
+        def write(value):
+            for part, item in zip(parts, value):
+                part(item)
+        return write
+    if view.ndim > 1:
+        row = view[k]            # a view of entry k: written whole
+        return lambda value: row.__setitem__(Ellipsis, value)
+    return lambda value: view.__setitem__(k, value)
+
+
 def _item(space, batch, k: int):
     """Entry k of a batch of `space` (Dict and Tuple batches are dicts and tuples of batches)."""
     if isinstance(space, spaces.Dict):
@@ -255,14 +285,31 @@ class _Shared:
 
     def _views(self) -> None:
         self.action_view = read_from_shared_memory(self.action_space, self.actions, self.num_envs)
+        self.observation_view = read_from_shared_memory(self.observation_space, self.observations, self.num_envs)
         self.rewards = np.frombuffer(self._numbers, dtype=np.float64)
         flags = np.frombuffer(self._flags, dtype=np.bool_)
         self.terminations, self.truncations = flags[:self.num_envs], flags[self.num_envs:]
-        slots = np.frombuffer(self._commands, dtype=np.int8)
-        self.command, self.answered = slots[0::2], slots[1::2]
+
+    # the command slots and the per-env numbers are written through ctypes: a fraction of a numpy item write
+    def command(self, worker: int) -> int:
+        return self._commands[2 * worker]
+
+    def set_command(self, worker: int, command: int) -> None:
+        self._commands[2 * worker] = command
+
+    def answered(self, worker: int) -> bool:
+        return bool(self._commands[2 * worker + 1])
+
+    def set_answered(self, worker: int, answered: bool) -> None:
+        self._commands[2 * worker + 1] = 1 if answered else 0
+
+    def write_outcome(self, k: int, reward, terminated, truncated) -> None:
+        self._numbers[k] = reward
+        self._flags[k] = 1 if terminated else 0
+        self._flags[self.num_envs + k] = 1 if truncated else 0
 
     def __getstate__(self):      # to a spawned worker: the shared buffers, not the numpy views of them
-        views = ("action_view", "rewards", "terminations", "truncations", "command", "answered")
+        views = ("action_view", "observation_view", "rewards", "terminations", "truncations")
         return {key: value for key, value in self.__dict__.items() if key not in views}
 
     def __setstate__(self, state):
@@ -275,10 +322,20 @@ class _Share:
     go to the shared memory, the infos are returned."""
 
     def __init__(self, env_fns, indices: range, autoreset_mode: AutoresetMode):
-        self.envs, self.indices, self.autoreset_mode = [], indices, autoreset_mode
+        self.envs, self.indices = [], indices
+        self._same_step = autoreset_mode == AutoresetMode.SAME_STEP
         for fn in env_fns:
             self.envs.append(fn())
         self._needs_reset = [False] * len(self.envs)
+        self._bound = None
+
+    def _bind(self, shared: _Shared) -> None:
+        """Per env: its action (a view into the shared batch where the space allows) and a writer of its
+        observation into the shared batch."""
+        self._bound = shared
+        self._actions = [_item(shared.action_space, shared.action_view, k) for k in self.indices] \
+            if isinstance(shared.action_space, spaces.Box) else None
+        self._writers = [_writer(shared.observation_space, shared.observation_view, k) for k in self.indices]
 
     def reset(self, seeds, options, shared: _Shared) -> list:
         infos = []
@@ -290,27 +347,32 @@ class _Share:
         return infos
 
     def step(self, shared: _Shared) -> list:
+        if self._bound is not shared:
+            self._bind(shared)
         infos = []
         for i, (k, env) in enumerate(zip(self.indices, self.envs)):
             if self._needs_reset[i]:          # next-step autoreset: this step only resets
                 obs, info = env.reset()
                 reward, terminated, truncated = 0.0, False, False
             else:
-                action = _item(shared.action_space, shared.action_view, k)
+                action = self._actions[i] if self._actions is not None else \
+                    _item(shared.action_space, shared.action_view, k)
                 obs, reward, terminated, truncated, info = env.step(action)
-                if (terminated or truncated) and self.autoreset_mode == AutoresetMode.SAME_STEP:
+                if (terminated or truncated) and self._same_step:
                     final = {"final_obs": obs, "final_info": info}
                     obs, info = env.reset()
                     info = {**info, **final}
-            self._needs_reset[i] = self.autoreset_mode == AutoresetMode.NEXT_STEP and (terminated or truncated)
-            self._write(shared, k, obs, reward, terminated, truncated)
+            self._needs_reset[i] = (terminated or truncated) and not self._same_step
+            self._writers[i](obs)
+            shared.write_outcome(k, reward, terminated, truncated)
             infos.append(info)
         return infos
 
-    @staticmethod
-    def _write(shared: _Shared, k: int, obs, reward, terminated, truncated) -> None:
-        write_to_shared_memory(shared.observation_space, k, obs, shared.observations)
-        shared.rewards[k], shared.terminations[k], shared.truncations[k] = reward, terminated, truncated
+    def _write(self, shared: _Shared, k: int, obs, reward, terminated, truncated) -> None:
+        if self._bound is not shared:
+            self._bind(shared)
+        self._writers[k - self.indices.start](obs)
+        shared.write_outcome(k, reward, terminated, truncated)
 
     def call(self, name: str, args, kwargs) -> list:
         if name == "__setattr__":
@@ -349,7 +411,7 @@ class _Worker:
         return cls(index, process, pipe, shared.go[index], shared.done[index], shared)
 
     def order(self, command: int, payload=None) -> None:
-        self.shared.command[self.index] = command
+        self.shared.set_command(self.index, command)
         if payload is not None:
             self.pipe.send(payload)
         self.go.release()
@@ -359,9 +421,9 @@ class _Worker:
         if not _wait(self.done, spin_seconds, self.process.is_alive):
             raise RuntimeError(f"ParallelVectorEnv: worker process {self.index + 1} died "
                                f"(exit code {self.process.exitcode})")
-        if not shared.answered[self.index]:
+        if not shared.answered(self.index):
             return None
-        shared.answered[self.index] = 0
+        shared.set_answered(self.index, False)
         kind, value = self.pipe.recv()
         if kind == "error":
             raise RuntimeError(f"ParallelVectorEnv worker {self.index + 1} raised:\n{value}")
@@ -398,7 +460,7 @@ def _work(index: int, env_fns, share: range, shared: _Shared, pipe, autoreset_mo
 
     def answer(kind: str, value) -> None:
         pipe.send((kind, value))
-        shared.answered[index] = 1
+        shared.set_answered(index, True)
 
     envs = None
     try:
@@ -409,7 +471,7 @@ def _work(index: int, env_fns, share: range, shared: _Shared, pipe, autoreset_mo
     while envs is not None:
         if not _wait(go, spin_seconds, lambda: os.getppid() == parent):
             break                        # the calling process is gone
-        command = int(shared.command[index])
+        command = shared.command(index)
         if command == CLOSE:
             break
         try:
