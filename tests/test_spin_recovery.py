@@ -49,6 +49,17 @@ def test_oracle_switches_at_the_true_onset_with_the_true_target():
     assert policy.spin.failed_rotor == 1
 
 
+def test_oracle_with_a_switch_delay_switches_that_long_after_the_onset():
+    env = make_env(vehicle="mueller2014")
+    obs, info = env.reset(seed=0)
+    policy = make_policy("oracle-spin", env)
+    policy.switch_delay = 0.02
+    policy.reset(obs, info)
+    for time, engaged in ((1.0, False), (1.019, False), (1.02, True)):
+        policy.act(obs, {**info, "time": time, "oracle_onset_time": 1.0, "oracle_fault_target": 3, **_status(False)})
+        assert (policy.spin.mode == "hold") is engaged, time
+
+
 def test_thrust_axis_reference_is_within_the_primary_axis_error():
     """The reference is -z of the nearest attitude with the primary axis on target: on target it is the
     measured thrust axis, and it is never further from it than the primary axis is from its target."""

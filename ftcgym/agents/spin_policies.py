@@ -56,14 +56,17 @@ class OracleSpinPolicy(SpinAfterAlarmPolicy):
     The benchmark gives an oracle `info["oracle_onset_time"]`. The failed rotor comes from
     `info["oracle_fault_target"]` where the runner provides it (a one-line change to
     `ftcgym.benchmark.runner.policy_view`); without it, from the detector's isolation once it alarms, and the
-    oracle then switches no earlier than `ftc-spin`.
+    oracle then switches no earlier than `ftc-spin`. `switch_delay` (s, default 0) makes it switch that long after
+    the onset: the best a detector with that latency could give (docs/measurements.md, 'Recovery against switch
+    delay').
     """
 
     uses_true_onset = True
+    switch_delay = 0.0
 
     def _failed_rotor(self, info: dict):
         onset = info.get("oracle_onset_time")
-        if onset is None or info["time"] < onset:
+        if onset is None or info["time"] < onset + self.switch_delay:
             return None
         target = info.get("oracle_fault_target")
         if target is not None:
