@@ -18,6 +18,7 @@ Every ftcgym env has it as its vector entry point (`make_parallel`):
 """
 from __future__ import annotations
 
+import contextlib
 import multiprocessing as mp
 import os
 import time
@@ -104,7 +105,8 @@ class ParallelVectorEnv(VectorEnv):
         seeds = _seeds(seed, self.num_envs)
         for worker, share in zip(self._workers, self._shares[1:]):
             worker.order(RESET, ([seeds[k] for k in share], options))
-        infos = self._gather(self._own.reset([seeds[k] for k in self._shares[0]], options, self._shared))
+        infos = self._gather(self._own_part(self._own.reset, [seeds[k] for k in self._shares[0]], options,
+                                            self._shared))
         return self._observations_out(), infos      # after the workers answered: their observations are in
 
     def step_each(self, actions):
@@ -113,7 +115,7 @@ class ParallelVectorEnv(VectorEnv):
         _copy_batch(self.single_action_space, self._shared.action_view, actions)
         for worker in self._workers:
             worker.order(STEP)
-        infos = self._gather(self._own.step(self._shared))
+        infos = self._gather(self._own_part(self._own.step, self._shared))
         s = self._shared
         return self._observations_out(), s.rewards.copy(), s.terminations.copy(), s.truncations.copy(), infos
 
@@ -123,9 +125,9 @@ class ParallelVectorEnv(VectorEnv):
         self._check_open("call")
         for worker in self._workers:
             worker.order(CALL, (name, args, kwargs))
-        results = self._own.call(name, args, kwargs)
-        for worker in self._workers:
-            results.extend(worker.answer(self._shared, self.spin_seconds) or [])
+        results = self._own_part(self._own.call, name, args, kwargs)
+        for answer in self._answers():
+            results.extend(answer or [])
         return tuple(results)
 
     def get_attr(self, name: str) -> tuple:
@@ -140,9 +142,8 @@ class ParallelVectorEnv(VectorEnv):
                              f"{self.num_envs}")
         for worker, share in zip(self._workers, self._shares[1:]):
             worker.order(CALL, ("__setattr__", (name, [values[k] for k in share]), {}))
-        self._own.call("__setattr__", (name, [values[k] for k in self._shares[0]]), {})
-        for worker in self._workers:
-            worker.answer(self._shared, self.spin_seconds)
+        self._own_part(self._own.call, "__setattr__", (name, [values[k] for k in self._shares[0]]), {})
+        self._answers()
 
     def close_extras(self, **kwargs) -> None:
         if self.closed:
@@ -168,12 +169,35 @@ class ParallelVectorEnv(VectorEnv):
                 infos = self._add_info(infos, info, k)
         return infos
 
+    def _own_part(self, work, *args):
+        """This process's share of a command; if it raises, the workers' answers are collected first, so the
+        next command starts in step."""
+        try:
+            return work(*args)
+        except BaseException:
+            with contextlib.suppress(RuntimeError):
+                self._answers()
+            raise
+
+    def _answers(self) -> list:
+        """Every worker's answer, in order, once all have answered; the first error of one is raised then."""
+        answers, error = [], None
+        for worker in self._workers:
+            try:
+                answers.append(worker.answer(self._shared, self.spin_seconds))
+            except RuntimeError as raised:
+                answers.append(None)
+                error = error or raised
+        if error is not None:
+            raise error
+        return answers
+
     def _gather(self, own: list | None = None) -> list:
         """Wait for every worker; the infos of every env, this process's `own` first (empty where a worker
-        sent none). A worker's error is raised here."""
+        sent none)."""
         infos = list(own or [])
-        for worker, share in zip(self._workers, self._shares[1:]):
-            infos.extend(worker.answer(self._shared, self.spin_seconds) or [{}] * len(share))
+        for answer, share in zip(self._answers(), self._shares[1:]):
+            infos.extend(answer or [{}] * len(share))
         return infos
 
 

@@ -88,9 +88,16 @@ def test_attributes_across_processes():
         envs.close()
 
 
-class RaisesAtStep(gym.Wrapper):
+class RaisesOnce(gym.Wrapper):
+    """Raises at its first step, then steps normally."""
+
+    raised = False
+
     def step(self, action):
-        raise ArithmeticError("deliberate failure in step")
+        if not self.raised:
+            self.raised = True
+            raise ArithmeticError("deliberate failure in step")
+        return self.env.step(action)
 
 
 def test_errors_are_raised_in_the_calling_process():
@@ -100,13 +107,21 @@ def test_errors_are_raised_in_the_calling_process():
         make_parallel(QUADROTOR, num_envs=2, autoreset_mode="Disabled")
     with pytest.raises(RuntimeError, match="worker 1 raised:(.|\n)*unknown"):
         ParallelVectorEnv([lambda: gym.make(QUADROTOR), lambda: gym.make(QUADROTOR, vehical="bebop2")], workers=1)
-    envs = ParallelVectorEnv([lambda: gym.make(QUADROTOR), lambda: RaisesAtStep(gym.make(QUADROTOR))], workers=1)
-    try:
-        envs.reset(seed=0)
-        with pytest.raises(RuntimeError, match="worker 1 raised:(.|\n)*deliberate failure"):
-            envs.step(np.full((2, 4), 0.6, dtype=np.float32))
-    finally:
-        envs.close()
+    hover = np.full((2, 4), 0.6, dtype=np.float32)
+    for failing, error, match in ((1, RuntimeError, "worker 1 raised:(.|\n)*deliberate failure"),
+                                  (0, ArithmeticError, "deliberate failure")):
+        fns = [lambda: gym.make(QUADROTOR)] * 2
+        fns[failing] = lambda: RaisesOnce(gym.make(QUADROTOR))
+        envs = ParallelVectorEnv(fns, workers=1)
+        try:
+            envs.reset(seed=0)
+            with pytest.raises(error, match=match):
+                envs.step(hover)
+            obs, reward, *_ = envs.step(hover)            # the processes are still in step with each other
+            assert np.all(np.isfinite(obs["position"])) and np.all(reward > 0.0)
+            assert envs.get_attr("physics_hz") == (500.0, 500.0)
+        finally:
+            envs.close()
     with pytest.raises(RuntimeError, match="step after close"):
         envs.step(np.full((2, 4), 0.6, dtype=np.float32))
 
