@@ -136,3 +136,17 @@ def test_a_dead_worker_is_an_error_not_a_hang():
             envs.step(np.full((2, 4), 0.6, dtype=np.float32))
     finally:
         envs.close()
+
+
+def test_spawned_workers_give_the_same_results():
+    """The start method of macOS and Windows: the worker gets the shared buffers by pickling, not by fork."""
+    fns = [lambda: gym.make(QUADROTOR, **FAST)] * 2
+    sync, spawned = SyncVectorEnv(fns), ParallelVectorEnv(fns, workers=1, context="spawn")
+    try:
+        assert_same(sync.reset(seed=3), spawned.reset(seed=3), "reset")
+        for t in range(20):
+            actions = np.full((2, 4), 0.55 + 0.005 * t, dtype=np.float32)
+            assert_same(sync.step(actions), spawned.step(actions), f"step {t}")
+    finally:
+        sync.close()
+        spawned.close()
