@@ -184,14 +184,14 @@ class FlightEnv(gym.Env):
             self.render()
         return obs, terminated, truncated
 
-    def _integrate_world(self, force_ned, moment_ned) -> None:
-        """One physics step with the force and moment in the world frame (NED); then the faults of the new time
-        and the state.
+    def _integrate_world(self, loads_ned) -> None:
+        """One physics step with the force and moment in the world frame (NED), `loads_ned` = (fx, fy, fz, mx, my,
+        mz, ...) as `physics_loads` returns them; then the faults of the new time and the state.
 
         The physics step works on plain floats (`_p`, `_v`, `_q`, `_Rm` row-major, `_w`: position, velocity,
         quaternion, rotation matrix and body rates; `_pos`, `_vel`, ... give them as arrays)."""
         self._vb, self._Rb = self._v, self._Rm      # the step's start, for `_set_specific_force`
-        self.world.step(force_ned, moment_ned, self._p)
+        self.world.step(loads_ned, self._p)
         self._physics_steps += 1
         self.time = self._physics_steps / self.physics_hz  # counted, so it never drifts
         self._apply_faults()

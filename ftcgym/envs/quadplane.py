@@ -182,7 +182,7 @@ class QuadPlaneEnv(FlightEnv):
         loads = physics_loads(self.hover_rotors.state, self._controls, self._motion, self.aero.constants,
                               self.pusher.state, self.pusher.constants, self._loads_params, self._Rm, self._v,
                               self._w, wind, self.sensors.rotor_angles)
-        self._integrate_world(loads[:3], loads[3:6])
+        self._integrate_world(loads)          # loads[:6]; the air velocity follows
         self._air_body = loads[6:]
 
     @property

@@ -153,7 +153,7 @@ class QuadrotorEnv(FlightEnv):
         rotors = self.rotors
         loads = physics_loads(rotors.state, rotors.geometry, self._omega_cmd, self._loads_params, self._Rm,
                               self._v, self._w, wind, self.sensors.rotor_angles)
-        self._integrate_world(loads[:3], loads[3:])
+        self._integrate_world(loads)
 
     def _apply_faults(self) -> None:
         """Set the rotor and mass faults in force from `self.time` on (so info at t shows what acts next)."""

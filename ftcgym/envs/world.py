@@ -127,13 +127,14 @@ class PyBulletWorld:
         return ((x, -y, -z), (orn[0], -orn[1], -orn[2], orn[3]),
                 (m[0], -m[1], -m[2], -m[3], m[4], m[5], -m[6], m[7], m[8]), (u, -v, -w), (a, -b, -g))
 
-    def step(self, force_ned, torque_ned, position_ned) -> None:
-        """Apply a force at the centre of mass and a torque (world NED), then advance one physics step."""
+    def step(self, loads_ned, position_ned) -> None:
+        """Apply a force at the centre of mass and a torque, `loads_ned` = (fx, fy, fz, mx, my, mz) in the world
+        frame (NED; entries past these six are ignored), then advance one physics step."""
         c, body = self.client, self.body
         # (objectUniqueId, linkIndex, force or torque, [position,] flags, physicsClientId)
-        _apply_force(body, -1, (force_ned[0], -force_ned[1], -force_ned[2]),
+        _apply_force(body, -1, (loads_ned[0], -loads_ned[1], -loads_ned[2]),
                      (position_ned[0], -position_ned[1], -position_ned[2]), _WORLD_FRAME, c)
-        _apply_torque(body, -1, (torque_ned[0], -torque_ned[1], -torque_ned[2]), _WORLD_FRAME, c)
+        _apply_torque(body, -1, (loads_ned[3], -loads_ned[4], -loads_ned[5]), _WORLD_FRAME, c)
         _step(c)
 
     def touching_ground(self) -> bool:
