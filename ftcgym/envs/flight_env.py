@@ -75,8 +75,6 @@ class FlightEnv(gym.Env):
         self.wind = self._configured_wind = DrydenWind.from_config(wind, self.dt)
         self.fault_specs = self._configured_faults = self._parse_faults(faults)
         self._check_faults(self.params, self.fault_specs)
-        self._R_array = np.zeros((3, 3))       # the attitude as a matrix, for the rotations into the world
-        self._R_flat = self._R_array.reshape(9)
 
     def _set_observation_space(self, space) -> None:
         """The Dict of readings (`dict_observation_space`), and `observation_space`: that Dict, or at
@@ -177,6 +175,7 @@ class FlightEnv(gym.Env):
         self._check_open("step")
         for _ in range(self.substeps):
             self._physics_step()
+        self._set_specific_force()      # read per agent step only (sensors), so not computed per physics step
         obs = self._format(self._observe())
         self._check_crash()
         terminated = self._crashed
@@ -185,32 +184,34 @@ class FlightEnv(gym.Env):
             self.render()
         return obs, terminated, truncated
 
-    def _integrate_world(self, force_ned, moment_ned) -> None:
-        """One physics step with the force and moment in the world frame (NED); then the faults of the new time
-        and the state.
+    def _integrate_world(self, loads_ned) -> None:
+        """One physics step with the force and moment in the world frame (NED), `loads_ned` = (fx, fy, fz, mx, my,
+        mz, ...) as `physics_loads` returns them; then the faults of the new time and the state.
 
         The physics step works on plain floats (`_p`, `_v`, `_q`, `_Rm` row-major, `_w`: position, velocity,
         quaternion, rotation matrix and body rates; `_pos`, `_vel`, ... give them as arrays)."""
-        v_before, R = self._v, self._Rm
-        self.world.step(force_ned, moment_ned, self._p)
+        self._vb, self._Rb = self._v, self._Rm      # the step's start, for `_set_specific_force`
+        self.world.step(loads_ned, self._p)
         self._physics_steps += 1
         self.time = self._physics_steps / self.physics_hz  # counted, so it never drifts
         self._apply_faults()
         self._read_state()
-        # An IMU measures the specific force over the interval: (dv/dt - g) in the body frame. PyBullet's
-        # semi-implicit step applies the force set with the attitude R at the step's start, so R (not the
-        # attitude after the step) maps it back exactly; contact forces are included.
-        dt, v = self.dt, self._v
+
+    def _set_specific_force(self) -> None:
+        """The specific force `_sf` over the last physics step (`_advance` calls it after its substeps).
+
+        An IMU measures the specific force over the interval: (dv/dt - g) in the body frame. PyBullet's
+        semi-implicit step applies the force set with the attitude R at the step's start, so R (not the
+        attitude after the step) maps it back exactly; contact forces are included."""
+        dt, v, v_before, R = self.dt, self._v, self._vb, self._Rb
         d0, d1, d2 = (v[0] - v_before[0]) / dt, (v[1] - v_before[1]) / dt, (v[2] - v_before[2]) / dt - GRAVITY
         self._sf = (R[0] * d0 + R[3] * d1 + R[6] * d2, R[1] * d0 + R[4] * d1 + R[7] * d2,
                     R[2] * d0 + R[5] * d1 + R[8] * d2)
-        self._vb = v_before
 
     def _read_state(self) -> None:
         """One read of the body's state (`PyBulletWorld.read`); body rates R^T omega."""
         self._p, self._q, R, self._v, (a, b, c) = self.world.read()
         self._Rm = R
-        self._R_flat[:] = R
         self._w = (R[0] * a + R[3] * b + R[6] * c, R[1] * a + R[4] * b + R[7] * c, R[2] * a + R[5] * b + R[8] * c)
 
     def _at_rest_readings(self) -> None:

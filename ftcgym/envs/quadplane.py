@@ -152,7 +152,7 @@ class QuadPlaneEnv(FlightEnv):
         self._wind = tuple(self.wind.reset(rng).tolist())
         self.sensors.reset(rng)
         self._at_rest_readings()
-        self._air_body = air_velocity(self._R_array, self._v, self._wind)
+        self._air_body = air_velocity(self._R, self._v, self._wind)
         return self._format(self._observe()), self._info()
 
     def _start_heading(self) -> float:
@@ -180,9 +180,9 @@ class QuadPlaneEnv(FlightEnv):
         """Wind, then the actuators, the air velocity and the loads on the body (`physics_loads`, compiled)."""
         wind = self._wind = self.wind.advance()
         loads = physics_loads(self.hover_rotors.state, self._controls, self._motion, self.aero.constants,
-                              self.pusher.state, self.pusher.constants, self._loads_params, self._R_array, self._v,
+                              self.pusher.state, self.pusher.constants, self._loads_params, self._Rm, self._v,
                               self._w, wind, self.sensors.rotor_angles)
-        self._integrate_world(loads[:3], loads[3:6])
+        self._integrate_world(loads)          # loads[:6]; the air velocity follows
         self._air_body = loads[6:]
 
     @property
@@ -247,7 +247,7 @@ class QuadPlaneEnv(FlightEnv):
 
 
 @njit(cache=True)
-def physics_loads(rotors, controls, motion, aero, pusher, pusher_constants, params, R, v, rates, wind,
+def physics_loads(rotors, controls, motion, aero, pusher, pusher_constants, params, R_rows, v, rates, wind,
                   angles):  # pragma: no cover (compiled)
     """One physics step of the actuators and the loads on the body, in the world frame: (fx, fy, fz, mx, my, mz)
     NED, then the air velocity in the body frame (u, v, w) the loads were computed with.
@@ -257,7 +257,8 @@ def physics_loads(rotors, controls, motion, aero, pusher, pusher_constants, para
     after their servos' first-order lag (`motion`); the pusher (`pusher_step`, at the throttle, fed the forward
     air speed). The air velocity is R^T (v - wind); the loads are `aero_loads`' (pusher included), rotated into
     the world frame by BLAS's products, as numpy's. `params`: dt, the gains of `RotorSet.gains`, the skew step
-    per physics step, the servos' lag factor."""
+    per physics step, the servos' lag factor. The attitude R comes as its 9 entries row by row (`_Rm`)."""
+    R = np.array(R_rows).reshape(3, 3)
     dt = params[0]
     advance_speeds(rotors, controls[:4], dt, params[1], params[2], params[3], params[4])
     advance_phase(angles, rotors[OMEGA], dt)

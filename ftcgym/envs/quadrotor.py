@@ -151,9 +151,9 @@ class QuadrotorEnv(FlightEnv):
         """Rotors, wind, the rotor wrench plus body and rotational drag (`physics_loads`, compiled)."""
         wind = self._wind = self.wind.advance()
         rotors = self.rotors
-        loads = physics_loads(rotors.state, rotors.geometry, self._omega_cmd, self._loads_params, self._R_array,
+        loads = physics_loads(rotors.state, rotors.geometry, self._omega_cmd, self._loads_params, self._Rm,
                               self._v, self._w, wind, self.sensors.rotor_angles)
-        self._integrate_world(loads[:3], loads[3:])
+        self._integrate_world(loads)
 
     def _apply_faults(self) -> None:
         """Set the rotor and mass faults in force from `self.time` on (so info at t shows what acts next)."""
@@ -215,14 +215,17 @@ class QuadrotorEnv(FlightEnv):
 
 
 @njit(cache=True)
-def physics_loads(rotors, geometry, command, params, R, v, rates, wind, angles):  # pragma: no cover (compiled)
+def physics_loads(rotors, geometry, command, params, R_rows, v, rates, wind, angles):  # pragma: no cover (compiled)
     """One physics step's rotor speeds and angles (`advance_speeds`, in place on `rotors`; `advance_phase`, in
     place on `angles`) and the loads they and the airframe put on the body, in the world frame:
     (fx, fy, fz, mx, my, mz) NED.
 
     The air velocity in the body frame is R^T (v - wind); the body drag is -D v_air per axis and the
     rotational drag -(D1 + D2 |w|) w (`models.quadrotor`); `params` holds c_T, c_Q, k_d, dt, the gains of
-    `RotorSet.gains`, D and (D1, D2) per axis. The rotations into the world frame are BLAS's, as numpy's."""
+    `RotorSet.gains`, D and (D1, D2) per axis. The attitude R comes as its 9 entries row by row (`_Rm`: a
+    tuple passes to compiled code for less than a copy into an array costs); the rotations into the world frame
+    are BLAS's, as numpy's."""
+    R = np.array(R_rows).reshape(3, 3)
     c_t, c_q, k_d, dt = params[0], params[1], params[2], params[3]
     advance_speeds(rotors, command, dt, params[4], params[5], params[6], params[7])
     advance_phase(angles, rotors[OMEGA], dt)

@@ -37,6 +37,12 @@ def _stderr_silenced():
 with _stderr_silenced():
     import pybullet as p
 
+# The calls of every physics step (`read`, `step`) pass their arguments by position: PyBullet parses keywords
+# by looking each one up by name, which costs more than the call's own work for these small requests.
+_get_pose, _get_velocity, _get_matrix = p.getBasePositionAndOrientation, p.getBaseVelocity, p.getMatrixFromQuaternion
+_apply_force, _apply_torque, _step = p.applyExternalForce, p.applyExternalTorque, p.stepSimulation
+_WORLD_FRAME = p.WORLD_FRAME
+
 
 class PyBulletWorld:
     """One PyBullet client stepping one rigid body at a fixed rate."""
@@ -112,23 +118,24 @@ class PyBulletWorld:
         (FRD->NED, x y z w), rotation matrix (FRD->NED, row-major 9-tuple), velocity (NED) and angular velocity
         (NED); raises FloatingPointError if the physics produced a non-finite state. The values are those of
         `vec_to_ned`, `quat_to_ned` and `T R_pb T` exactly (sign flips only)."""
-        c = self.client
-        (x, y, z), orn = p.getBasePositionAndOrientation(self.body, physicsClientId=c)
-        (u, v, w), (a, b, g) = p.getBaseVelocity(self.body, physicsClientId=c)
+        c, body = self.client, self.body
+        (x, y, z), orn = _get_pose(body, c)           # (bodyUniqueId, physicsClientId)
+        (u, v, w), (a, b, g) = _get_velocity(body, c)
         if not math.isfinite(x + y + z + u + v + w + a + b + g + orn[0] + orn[1] + orn[2] + orn[3]):
             raise FloatingPointError("physics state became non-finite; please report this as a bug")
-        m = p.getMatrixFromQuaternion(orn, physicsClientId=c)
+        m = _get_matrix(orn)                          # plain arithmetic: no client needed
         return ((x, -y, -z), (orn[0], -orn[1], -orn[2], orn[3]),
                 (m[0], -m[1], -m[2], -m[3], m[4], m[5], -m[6], m[7], m[8]), (u, -v, -w), (a, -b, -g))
 
-    def step(self, force_ned, torque_ned, position_ned) -> None:
-        """Apply a force at the centre of mass and a torque (world NED), then advance one physics step."""
-        c = self.client
-        p.applyExternalForce(self.body, -1, (force_ned[0], -force_ned[1], -force_ned[2]),
-                             (position_ned[0], -position_ned[1], -position_ned[2]), p.WORLD_FRAME, physicsClientId=c)
-        p.applyExternalTorque(self.body, -1, (torque_ned[0], -torque_ned[1], -torque_ned[2]), p.WORLD_FRAME,
-                              physicsClientId=c)
-        p.stepSimulation(physicsClientId=c)
+    def step(self, loads_ned, position_ned) -> None:
+        """Apply a force at the centre of mass and a torque, `loads_ned` = (fx, fy, fz, mx, my, mz) in the world
+        frame (NED; entries past these six are ignored), then advance one physics step."""
+        c, body = self.client, self.body
+        # (objectUniqueId, linkIndex, force or torque, [position,] flags, physicsClientId)
+        _apply_force(body, -1, (loads_ned[0], -loads_ned[1], -loads_ned[2]),
+                     (position_ned[0], -position_ned[1], -position_ned[2]), _WORLD_FRAME, c)
+        _apply_torque(body, -1, (loads_ned[3], -loads_ned[4], -loads_ned[5]), _WORLD_FRAME, c)
+        _step(c)
 
     def touching_ground(self) -> bool:
         return bool(p.getContactPoints(self.body, self.ground, physicsClientId=self.client))
