@@ -40,6 +40,8 @@ def test_matches_dummy_vec_env_step_for_step():
                 assert np.asarray(x).dtype == np.asarray(y).dtype
             for k, (x, y) in enumerate(zip(expected[3], got[3])):
                 same(x, y, f"step {t} info {k}")
+            for k, (x, y) in enumerate(zip(dummy.reset_infos, parallel.reset_infos)):
+                same(x, y, f"step {t} reset info {k}")           # what DAgger reads its labels from
             ends += int(expected[2].sum())
             episodes += sum("episode" in info and "terminal_observation" in info for info in got[3])
         assert ends >= 6 and episodes == ends         # each end carries Monitor's episode and the last observation
