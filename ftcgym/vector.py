@@ -13,8 +13,10 @@ The semantics are those of `gymnasium.vector.SyncVectorEnv`: the autoreset modes
 same-step, the same batched `info`, the same observations for the same seeds. Workers default to one per core
 beyond the caller's, at most one per env beyond the first; `workers=0` steps everything in this process.
 
-Every ftcgym env has it as its vector entry point (`make_parallel`):
-`gym.make_vec("ftcgym/Quadrotor-v0", num_envs=N, vectorization_mode="vector_entry_point", workers=..., ...)`.
+Every ftcgym env has it as its vector entry point (`make_parallel`), which `gym.make_vec(id, num_envs=N, ...)`
+uses unless `vectorization_mode` says "sync" or "async". Gymnasium passes a vector entry point neither
+`vector_kwargs` (give `copy=False` and the keywords below as plain keywords) nor `wrappers`: to wrap each env,
+build the vector env from env-building functions, `ParallelVectorEnv([make_wrapped_env] * N)`.
 """
 from __future__ import annotations
 
