@@ -74,9 +74,8 @@ def build_vec_env(config: TrainConfig, extra_kwargs: dict | None = None, normali
 
     factory = functools.partial(make_env, config.env_id, {**config.env_kwargs, **(extra_kwargs or {})},
                                 config.wrappers)
-    subproc = config.vec_env == "subproc" or (config.vec_env == "auto" and config.n_envs > 1)
-    vec_cls = {"parallel": ParallelVecEnv, "dummy": DummyVecEnv}.get(config.vec_env,
-                                                                       SubprocVecEnv if subproc else DummyVecEnv)
+    named = {"subproc": SubprocVecEnv, "dummy": DummyVecEnv, "parallel": ParallelVecEnv}
+    vec_cls = named.get(config.vec_env) or (SubprocVecEnv if config.n_envs > 1 else DummyVecEnv)   # "auto"
     venv = vec_cls([factory] * config.n_envs)
     venv.seed(config.seed)
     if config.normalize and normalize:

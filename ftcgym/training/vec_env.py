@@ -28,8 +28,8 @@ class ParallelVecEnv(VecEnv):
         self._actions = None
 
     def reset(self):
-        options = self._options[0] if all(o == self._options[0] for o in self._options) else None
-        if options is None and any(self._options):
+        options = self._options[0]
+        if any(other != options for other in self._options):
             raise ValueError("ParallelVecEnv.reset: different reset options per env are not supported; "
                              "accepted: the same options for every env")
         obs, self.reset_infos = self.vector_env.reset_each(seed=list(self._seeds), options=options or None)
@@ -49,11 +49,9 @@ class ParallelVecEnv(VecEnv):
                 self.reset_infos[k] = {key: value for key, value in info.items()
                                        if key not in ("final_obs", "final_info")}
                 info = {**info["final_info"], "terminal_observation": info["final_obs"]}
-            else:
-                info = dict(info)
             info["TimeLimit.truncated"] = bool(truncations[k] and not terminations[k])
             step_infos.append(info)
-        return obs, rewards.astype(np.float32), dones, deepcopy(step_infos)
+        return obs, rewards.astype(np.float32), dones, deepcopy(step_infos)   # as DummyVecEnv: copies
 
     def close(self) -> None:
         self.vector_env.close()
