@@ -43,6 +43,7 @@ from ..models.sensors import (
     advance_phase,
 )
 from ..models.vsqp import make_vsqp_params
+from .action_space import ActionBox
 from .flight_env import RENDER_SIZE, FlightEnv, check_action
 from .visuals import QuadPlaneLook
 
@@ -82,7 +83,7 @@ class QuadPlaneEnv(FlightEnv):
         self._set_observation_space(self._make_observation_space(self.params))
         self._limits = {key: (box.low, box.high) for key, box in self.dict_observation_space.spaces.items()}
         self._build_vehicle()
-        self.action_space = spaces.Box(ACTION_LOW, ACTION_HIGH, dtype=np.float32)
+        self.action_space = ActionBox(ACTION_LOW, ACTION_HIGH, dtype=np.float32)
         self._open_world()
 
     def _make_params(self, vehicle, overrides):

@@ -39,6 +39,7 @@ from ..models.sensors import (
     advance_phase,
     reading_slices,
 )
+from .action_space import ActionBox
 from .flight_env import RENDER_SIZE, FlightEnv, check_command
 from .visuals import QuadrotorLook
 
@@ -68,7 +69,7 @@ class QuadrotorEnv(FlightEnv):
         self._set_observation_space(self._make_observation_space(self.params))
         self._limits = {key: (box.low, box.high) for key, box in self.dict_observation_space.spaces.items()}
         self._build_vehicle()
-        self.action_space = spaces.Box(0.0, 1.0, (4,), np.float32)
+        self.action_space = ActionBox(0.0, 1.0, (4,), np.float32)
         self._open_world()
 
     def _make_params(self, vehicle, overrides):

@@ -37,6 +37,7 @@ from gymnasium import spaces
 
 from ftcgym.agents.quadplane_autopilot import PHASES
 from ftcgym.criteria import AIRSPEED_TOLERANCE
+from ftcgym.envs.action_space import ActionBox
 from ftcgym.fdd import wrap_with_detector
 from ftcgym.models.wind import random_mean_wind
 from ftcgym.task_envs.rotor_loss_recovery import interval
@@ -143,7 +144,7 @@ class AirspeedSourceEnv(gym.Env):
         self.max_episode_seconds = float(max_episode_seconds)
         self.detector_kwargs = dict(detector_kwargs or {})
         self.observation_space = spaces.Box(-FEATURE_BOUND, FEATURE_BOUND, (N_FEATURES,), np.float32)
-        self.action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
+        self.action_space = ActionBox(-1.0, 1.0, (1,), np.float32)
         self.env = None
 
     # ------------------------------------------------------------------------------------ episodes

@@ -19,6 +19,7 @@ import numpy as np
 from gymnasium import spaces
 
 from ..agents.quadplane_autopilot import PHASES, QuadPlaneAutopilot
+from ..envs.action_space import ActionBox
 from ..envs.quadplane import CRASH_PENALTY, QuadPlaneEnv
 from ..models.checks import real_array
 from ..models.tasks import MissionTask, make_task
@@ -44,7 +45,7 @@ class QuadPlaneAutopilotEnv(gym.Env):
         self.render_mode = self.plane.render_mode
         self.metadata = self.plane.metadata     # render_fps: the agent rate, as QuadPlane-v0's
         self.autopilot = QuadPlaneAutopilot(self.params, self.agent_hz, self.task)
-        self.action_space = spaces.Box(0.0, MAX_AIRSPEED_ACTION, (1,), np.float32)
+        self.action_space = ActionBox(0.0, MAX_AIRSPEED_ACTION, (1,), np.float32)
         self.observation_space = spaces.Dict({**self.plane.observation_space.spaces,
                                               "mission_phase": spaces.Box(0.0, len(PHASES) - 1.0, (1,), np.float64)})
 

@@ -42,6 +42,7 @@ import numpy as np
 from gymnasium import spaces
 
 from ftcgym.agents import SpinRecoveryController, make_policy, policy_view
+from ftcgym.envs.action_space import ActionBox
 from ftcgym.fdd import wrap_with_detector
 from ftcgym.models.geometry import rotation_matrix
 from ftcgym.models.tasks import make_task
@@ -159,7 +160,7 @@ class RotorLossRecoveryEnv(gym.Env):
         self.expert = bool(expert)
         self._expert_controller, self._expert_action = None, None
         self.observation_space = spaces.Box(-FEATURE_BOUND, FEATURE_BOUND, (N_FEATURES,), np.float32)
-        self.action_space = spaces.Box(-1.0, 1.0, (4,), np.float32)
+        self.action_space = ActionBox(-1.0, 1.0, (4,), np.float32)
         self._envs: dict[tuple, gym.Env] = {}   # one simulator per (vehicle, task), built on first use
         self.env = None
 
