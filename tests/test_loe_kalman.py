@@ -1,4 +1,6 @@
 """loe_kalman (000 Sec. IV): the Kalman step, the probability test, the filter, and detection in the simulator."""
+import math
+
 import numpy as np
 import pytest
 from conftest import LIGHT_WIND, make_env
@@ -9,8 +11,15 @@ from scipy.stats import norm
 
 from ftcgym.agents import make_policy
 from ftcgym.fdd import LoeKalmanDetector, loe_kalman_wrapper
-from ftcgym.fdd.base import Biquad
-from ftcgym.fdd.loe_kalman import SIGNS_000, failure_probability, kalman_step, lowpass_coefficients
+from ftcgym.fdd.base import Biquad, biquad_constants, biquad_step
+from ftcgym.fdd.loe_kalman import (
+    SIGNS_000,
+    _failure_probability,
+    _kalman_step,
+    failure_probability,
+    kalman_step,
+    lowpass_coefficients,
+)
 
 
 def test_kalman_step_matches_closed_form_information_update():
@@ -41,29 +50,66 @@ def test_covariance_stays_symmetric_positive_semidefinite(omega, z, steps):
     assert np.all((x >= 0.0) & (x <= 1.5))
 
 
+def _plain_cholesky_step(x, P, z, H, Q, r, k_bounds):
+    """`_kalman_step` in plain numpy and Python floats, the detector's step before it was compiled."""
+    P = P + Q
+    U = P.dot(H.T)
+    (s00, s01, s02), (_, s11, s12), (_, _, s22) = H.dot(U).tolist()
+    l00 = math.sqrt(s00 + r)
+    l10, l20 = s01 / l00, s02 / l00
+    l11 = math.sqrt(s11 + r - l10 * l10)
+    l21 = (s12 - l20 * l10) / l11
+    l22 = math.sqrt(s22 + r - l20 * l20 - l21 * l21)
+    m00, m11, m22 = 1.0 / l00, 1.0 / l11, 1.0 / l22
+    m10 = -m11 * l10 * m00
+    L_inv = ((m00, 0.0, 0.0), (m10, m11, 0.0), (-m22 * (l20 * m00 + l21 * m10), -m22 * l21 * m11, m22))
+    (i00, _, _), (i10, i11, _), (i20, i21, i22) = L_inv
+    V = U.dot(np.array(L_inv).T)
+    (z0, z1, z2), (h0, h1, h2) = z, H.dot(x).tolist()
+    y0, y1, y2 = z0 - h0, z1 - h1, z2 - h2
+    w0, w1, w2 = i00 * y0, i10 * y0 + i11 * y1, i20 * y0 + i21 * y1 + i22 * y2
+    lo, hi = k_bounds
+    x = [min(max(k + v0 * w0 + v1 * w1 + v2 * w2, lo), hi) for k, (v0, v1, v2) in zip(x.tolist(), V.tolist())]
+    return np.array(x), P - V.dot(V.T)
+
+
 @settings(max_examples=40, deadline=None)
 @given(st.lists(st.floats(300, 1300), min_size=4, max_size=4), st.lists(st.floats(-200, 200), min_size=3, max_size=3),
        st.lists(st.floats(0.0, 1.5), min_size=4, max_size=4), st.integers(0, 2**32 - 1))
-def test_detector_step_by_cholesky_equals_the_joseph_form_step(omega, z, x, seed):
-    """The detector's Kalman step (gain through the Cholesky factor of S) is `kalman_step` (solve, Joseph form) up
-    to rounding, on random states and covariances."""
-    det = LoeKalmanDetector(1 / 500, R=0.7)
+def test_compiled_kalman_step_equals_the_plain_step_and_the_joseph_form_step(omega, z, x, seed):
+    """The detector's compiled Kalman step (gain through the Cholesky factor of S) has the bits of the same step in
+    plain numpy, and is `kalman_step` (solve, Joseph form) up to rounding, on random states and covariances."""
     A = np.random.default_rng(seed).normal(0.0, 0.2, (4, 4))
-    det.x, det.P = np.array(x), A @ A.T + 1e-4 * np.eye(4)
-    H = det.B * np.square(omega)
-    x_ref, P_ref = kalman_step(det.x, det.P, np.array(z), H, det.Q, 0.7 * np.eye(3))
-    assert det._kalman_step(z, H) == det.x.tolist()
-    np.testing.assert_allclose(det.x, x_ref, rtol=0, atol=1e-11)       # 6e-13 at most in 5000 random cases
-    np.testing.assert_allclose(det.P, P_ref, rtol=0, atol=1e-11 * np.abs(P_ref).max())   # there 4e-13
-    assert np.array_equal(det.P, det.P.T)
+    x, P = np.array(x), A @ A.T + 1e-4 * np.eye(4)
+    H, Q = LoeKalmanDetector(1 / 500).B * np.square(omega), 2e-3 * np.eye(4)
+    x_plain, P_plain = _plain_cholesky_step(x, P, z, H, Q, 0.7, (0.0, 1.5))
+    x_ref, P_ref = kalman_step(x, P, np.array(z), H, Q, 0.7 * np.eye(3))
+    _kalman_step(x, P, tuple(z), H, Q, 0.7, 0.0, 1.5)                   # in place
+    assert np.array_equal(x, x_plain) and np.array_equal(P, P_plain)
+    np.testing.assert_allclose(x, x_ref, rtol=0, atol=1e-11)           # 6e-13 at most in 5000 random cases
+    np.testing.assert_allclose(P, P_ref, rtol=0, atol=1e-11 * np.abs(P_ref).max())   # there 4e-13
+    assert np.array_equal(P, P.T)
 
 
-def test_lowpass_on_a_list_of_channels_gives_the_bits_of_the_array_path():
+def test_compiled_lowpass_gives_the_bits_of_biquad():
+    """`biquad_step` on `biquad_constants` (the detectors' compiled low-pass) is `Biquad` on an array and on floats."""
     b, a = lowpass_coefficients(50.0, 0.55, 1 / 500)
     samples = np.random.default_rng(2).normal(700.0, 30.0, (200, 7))
-    on_array, on_list = Biquad(b, a), Biquad(b, a)
-    for sample in samples:
-        assert on_list(sample.tolist()) == on_array(sample).tolist()
+    on_array, per_channel = Biquad(b, a), [Biquad(b, a) for _ in range(7)]
+    constants, memory = biquad_constants(b, a), np.empty((2, 7))
+    for i, sample in enumerate(samples):
+        compiled = biquad_step(constants, memory, sample, i == 0).tolist()
+        assert compiled == on_array(sample).tolist() == [f(v) for f, v in zip(per_channel, sample.tolist())]
+
+
+def test_compiled_failure_probability_has_the_bits_of_scipys_erf():
+    """P_fail compiled (scipy's erf through its Cython API) equals `failure_probability` on numpy arrays bit for
+    bit, over the estimates' range and variances from 0 to far beyond the published ceiling."""
+    rng = np.random.default_rng(5)
+    k_hat = np.concatenate((rng.uniform(-0.5, 2.0, 20000), [0.25, 0.25, 1.0]))
+    variance = np.concatenate((10.0 ** rng.uniform(-14, 9, 20000), [0.0, 1e-300, 1e6]))
+    compiled = [_failure_probability(k, v, 0.25) for k, v in zip(k_hat.tolist(), variance.tolist())]
+    assert np.array_equal(compiled, failure_probability(k_hat, variance, 0.25))
 
 
 @pytest.mark.parametrize("k_hat, var", [(1.0, 0.04), (0.3, 0.01), (0.1, 0.2), (0.25, 1.0)])
@@ -96,10 +142,17 @@ def test_measurement_noise_must_be_positive(R):
         LoeKalmanDetector(1 / 500, R=R)
 
 
-def test_nan_reading_is_rejected():
+@pytest.mark.parametrize("key, index", [("gyro", 1), ("accel", 2), ("rotor_speed", 3)])  # the elements it reads
+def test_nan_reading_is_rejected_naming_it_and_leaves_the_state(key, index):
     det = LoeKalmanDetector(1 / 500)
-    with pytest.raises(ValueError, match="gyro"):
-        det.update({"gyro": np.array([np.nan, 0, 0]), "accel": np.zeros(3), "rotor_speed": np.ones(4)}, 0.0)
+    readings = {"gyro": np.zeros(3), "accel": np.array([0.0, 0.0, -9.81]), "rotor_speed": np.full(4, 700.0)}
+    det.update(readings, 0.0)
+    before = {**det.outputs(), **det.status()}
+    readings[key][index] = np.inf
+    with pytest.raises(ValueError, match=key):
+        det.update(readings, 0.002)
+    after = {**det.outputs(), **det.status()}
+    assert before.keys() == after.keys() and all(np.array_equal(before[k], after[k]) for k in before)
 
 
 def _fly_with_detector(seed, faults, task="hover", seconds=6.0):

@@ -39,13 +39,13 @@ class Detector(Protocol):
 
 
 class Biquad:
-    """A second-order IIR filter (b, a) run one sample at a time, direct form II transposed, on a scalar, a list of
-    channels or a 1-D array of channels; it starts at steady state on its first sample (no start-up transient).
+    """A second-order IIR filter (b, a) run one sample at a time, direct form II transposed, on a scalar or a 1-D
+    array of channels; it starts at steady state on its first sample (no start-up transient).
 
-    Per sample: y = b0 x + z0; z0 <- b1 x - a1 y + z1; z1 <- b2 x - a2 y. A scalar, or a list (returning a list),
-    runs on Python floats; an array in one compiled loop over its channels (`_biquad_channels`, returning a new
-    array). Each is the same operations in the same order, so the outputs are bit-identical (a list of 7
-    channels costs a third of numpy's whole-array form; the compiled loop less again)."""
+    Per sample: y = b0 x + z0; z0 <- b1 x - a1 y + z1; z1 <- b2 x - a2 y. A scalar runs on Python floats; an array
+    in one compiled loop over its channels (`_biquad_channels`, returning a new array); compiled detectors call
+    `biquad_step` on `biquad_constants`. Each is the same operations in the same order, so the outputs are
+    bit-identical."""
 
     def __init__(self, b, a):
         a = np.asarray(a, dtype=float)
@@ -59,28 +59,14 @@ class Biquad:
     def __call__(self, x):
         if self.z is None:
             self.z = np.multiply.outer(signal.lfilter_zi(self.b, self.a), x)
-            if self.z.ndim == 1 or isinstance(x, list):           # on floats: the state as two floats or lists
+            if self.z.ndim == 1:                                   # on a float: the state as two floats
                 self.z = tuple(self.z.tolist())
-        if isinstance(x, list):
-            return self._channels(x)
         if isinstance(self.z, tuple):
             (b0, b1, b2), (_, a1, a2), (z0, z1) = self._b_float, self._a_float, self.z
             y = b0 * x + z0
             self.z = (b1 * x - a1 * y + z1, b2 * x - a2 * y)
             return y
         return _biquad_channels(self.b, self.a, self.z, x)
-
-    def _channels(self, x: list) -> list:
-        """One sample of a list of channels, on floats."""
-        (b0, b1, b2), (_, a1, a2) = self._b_float, self._a_float
-        y, z0, z1 = [], [], []
-        for xi, z0i, z1i in zip(x, *self.z):
-            yi = b0 * xi + z0i
-            y.append(yi)
-            z0.append(b1 * xi - a1 * yi + z1i)
-            z1.append(b2 * xi - a2 * yi)
-        self.z = (z0, z1)
-        return y
 
 
 @njit(cache=True)
@@ -92,6 +78,24 @@ def _biquad_channels(b, a, z, x):  # pragma: no cover (compiled)
         z[0, i] = b[1] * x[i] - a[1] * y[i] + z[1, i]
         z[1, i] = b[2] * x[i] - a[2] * y[i]
     return y
+
+
+def biquad_constants(b, a) -> np.ndarray:
+    """`Biquad(b, a)` for `biquad_step`, one array of 8: b and a (each normalised by a0), then zi =
+    scipy.signal.lfilter_zi(b, a), the memory per unit input at steady state."""
+    lowpass = Biquad(b, a)
+    return np.concatenate((lowpass.b, lowpass.a, signal.lfilter_zi(lowpass.b, lowpass.a)))
+
+
+@njit(cache=True)
+def biquad_step(constants, z, x, first):  # pragma: no cover (compiled)
+    """`Biquad` on the channels x from compiled code: the outputs as a new array, the memory z (2, channels) in
+    place; on the `first` sample z starts at steady state, zi x, as `Biquad` does."""
+    if first:
+        for i in range(x.size):              # a loop: numba compiles the array expression zi x ten times slower
+            z[0, i] = constants[6] * x[i]
+            z[1, i] = constants[7] * x[i]
+    return _biquad_channels(constants[:3], constants[3:6], z, x)
 
 
 class AlarmLatch:

@@ -30,6 +30,10 @@ residuals' spread and checked on tuning flights only (base seed 1000 of `quad-ro
 `quad-rotor-loss-maneuver` and `quad-no-fault-long`, replayed offline); the thresholds are empirical (the filtered
 residual is not white). The figures on held-out seeds are in docs/detectors/loe-cusum.md. Detection starts, as
 000 Sec. V-D, once the rotors carry `takeoff_fraction` of the weight.
+
+Steps 1-6 are one compiled function (numba: `_step`, on the detector's state and constants packed in two arrays,
+as numba's call cost grows with each argument), with the operations of the plain-Python detector it replaced in
+the same order, so every output keeps its bits.
 """
 from __future__ import annotations
 
@@ -37,13 +41,28 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from ..models.constants import GRAVITY
 from ..settings import updated
-from .base import AlarmLatch, Biquad
-from .loe_kalman import TABLE_II, effectiveness_matrix, lowpass_coefficients
+from .base import AlarmLatch, biquad_constants, biquad_step
+from .loe_kalman import NO_ALARM, NON_FINITE, TABLE_II, _sample, effectiveness_matrix, lowpass_coefficients
 
 CUSUM_CEILING = 1e6  # the published statistics are clipped here (they are unbounded after a loss)
+
+#: The detector's state (`LoeCusumDetector._state`): what `outputs` publishes (g, h, e), three flags (1.0 true:
+#: the detection is armed, a sample was seen, the baseline is set), the baseline b, the last filtered p and q,
+#: the last measured rotor speeds and the low-pass's memory (2 x 7 channels: p, q, a_z, omega_1..4).
+CUSUM, SPEED_CUSUM, RESIDUAL, OUTPUTS = slice(0, 4), slice(4, 8), slice(8, 11), slice(0, 11)
+ARMED, STARTED, BASELINE_SET, BASELINE, LAST_P, LAST_Q = 11, 12, 13, slice(14, 17), 17, 18
+LAST_SPEEDS, LOWPASS_MEMORY, STATE_SIZE = slice(19, 23), slice(23, 37), 37
+#: Its constants (`LoeCusumDetector._constants`): B (3 x 4, row-major), theta_i / omega_i^2 (rotor i's shift
+#: per squared speed, row i), Sigma^-1's diagonal, the low-pass (`biquad_constants`), then dt, the thrust that arms
+#: it, the baseline's and the motor's gains, the threshold on g, the speed test's settings and whether it is on.
+B_ROWS, SHIFTS, INVERSE_VARIANCE, LOWPASS = slice(0, 12), slice(12, 24), slice(24, 27), slice(27, 35)
+DT, ARMING_THRUST, BASELINE_GAIN, MOTOR_GAIN, THRESHOLD = range(35, 40)
+OMEGA_MIN, OMEGA_SPAN, SPEED_SIGMA, SPEED_DRIFT, SPEED_THRESHOLD, SPEED_TEST = range(40, 46)
+_NO_COMMAND = np.empty(0)
 
 
 @dataclass(frozen=True)
@@ -94,79 +113,157 @@ class LoeCusumDetector:
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"{field}: must be a finite number > 0, got {value!r}")
         self.B = B
-        self._rows = B.tolist()
-        self._shift_columns = [[-s.fault_fraction * b for b in column] for column in B.T.tolist()]  # theta_i/omega_i^2
-        self._inverse_variance = (1.0 / sigma ** 2).tolist()
-        self._baseline_gain = 1.0 - math.exp(-self.dt / s.baseline_time_constant)
-        self._motor_gain = 1.0 - math.exp(-self.dt / s.motor_time_constant)
-        self._coefficients = lowpass_coefficients(s.filter_wn, s.filter_zeta, self.dt)
+        shifts = -s.fault_fraction * B.T                                  # theta_i / omega_i^2, row i
+        lowpass = biquad_constants(*lowpass_coefficients(s.filter_wn, s.filter_zeta, self.dt))
+        self._constants = np.concatenate((B.ravel(), shifts.ravel(), 1.0 / sigma ** 2, lowpass, (
+            self.dt, s.takeoff_fraction * GRAVITY, 1.0 - math.exp(-self.dt / s.baseline_time_constant),
+            1.0 - math.exp(-self.dt / s.motor_time_constant), s.threshold, s.omega_min, s.omega_max - s.omega_min,
+            s.speed_sigma, s.speed_drift, s.speed_threshold, bool(s.speed_test))))
+        self._state = np.zeros(STATE_SIZE)
         self._alarm = AlarmLatch()
         self.reset()
 
     def reset(self) -> None:
-        self.cusum = [0.0] * 4
-        self.speed_cusum = [0.0] * 4
-        self.residual = [0.0] * 3
-        self._baseline = None
-        self._filter = Biquad(*self._coefficients)
-        self._previous_rates = None
-        self._previous_speed = None
-        self.armed = False
+        self._state[:] = 0.0
         self._alarm.reset()
 
     def update(self, readings: dict, time: float, command=None) -> None:
-        gyro, accel, speed = readings["gyro"].tolist(), readings["accel"].tolist(), readings["rotor_speed"].tolist()
-        sample = [gyro[0], gyro[1], accel[2], *speed]
-        command = None if command is None else np.asarray(command, dtype=float).tolist()
-        if not math.isfinite(sum(sample)) or (command is not None and not math.isfinite(sum(command))):
+        """One sample, compiled (`_step`); a non-finite reading or command raises ValueError naming it, the state
+        untouched."""
+        command = _NO_COMMAND if command is None else np.asarray(command, dtype=np.float64)
+        rotor = _step(readings["gyro"], readings["accel"], readings["rotor_speed"], command, self._state,
+                      self._constants)
+        if rotor >= 0:
+            self._alarm.trigger(time, rotor)
+        elif rotor == NON_FINITE:
             _reject_non_finite(readings, command)
-        s = self.settings
-        self._speed_test(speed, command)
-        filtered = self._filter(sample)
-        previous, self._previous_rates = self._previous_rates, filtered
-        omega2 = [w * w for w in filtered[3:]]
-        B = self._rows
-        if not self.armed:
-            self.armed = abs(_dot(B[2], omega2)) >= s.takeoff_fraction * GRAVITY
-        if previous is None or not self.armed:
-            return
-        z = ((filtered[0] - previous[0]) / self.dt, (filtered[1] - previous[1]) / self.dt, filtered[2])
-        r = [zc - _dot(row, omega2) for zc, row in zip(z, B)]                   # 000 eq. (12), k = 1
-        if self._baseline is None:
-            self._baseline = r
-        e = self.residual = [rc - bc for rc, bc in zip(r, self._baseline)]
-        gain = self._baseline_gain
-        self._baseline = [bc + gain * (rc - bc) for rc, bc in zip(r, self._baseline)]
-        (e0, e1, e2), (v0, v1, v2) = e, self._inverse_variance
-        for i, ((c0, c1, c2), w) in enumerate(zip(self._shift_columns, omega2)):
-            t0, t1, t2 = c0 * w, c1 * w, c2 * w                                   # theta_i, 000 eq. (12), k_i = 0
-            step = t0 * v0 * (e0 - 0.5 * t0) + t1 * v1 * (e1 - 0.5 * t1) + t2 * v2 * (e2 - 0.5 * t2)  # LLR, B & N
-            self.cusum[i] = min(max(0.0, self.cusum[i] + step), CUSUM_CEILING)    # Page 1954
-        use_speed = s.speed_test and command is not None
-        candidates = [i for i in range(4) if self.cusum[i] > s.threshold
-                      and (not use_speed or self.speed_cusum[i] > s.speed_threshold)]
-        if candidates:
-            self._alarm.trigger(time, max(candidates, key=lambda i: self.cusum[i]))
 
-    def _speed_test(self, speed: list, command: list | None) -> None:
-        """Step 5 of the module docstring: the one-step motor-speed residual and its one-sided CUSUM."""
-        previous, self._previous_speed = self._previous_speed, speed
-        if command is None or previous is None:
-            return
-        s = self.settings
-        span, gain = s.omega_max - s.omega_min, self._motor_gain
-        for i, (w, w_last, u) in enumerate(zip(speed, previous, command)):
-            predicted = w_last + gain * (s.omega_min + u * span - w_last)   # first-order lag (000 Sec. III-A)
-            step = (w - predicted) / s.speed_sigma - s.speed_drift
-            self.speed_cusum[i] = min(max(0.0, self.speed_cusum[i] + step), CUSUM_CEILING)
+    @property
+    def cusum(self) -> np.ndarray:
+        """g, the CUSUM per rotor (a view of the state)."""
+        return self._state[CUSUM]
+
+    @property
+    def speed_cusum(self) -> np.ndarray:
+        """h, the motor-speed CUSUM per rotor (a view of the state)."""
+        return self._state[SPEED_CUSUM]
+
+    @property
+    def residual(self) -> np.ndarray:
+        """e, the residual less its baseline (a view of the state)."""
+        return self._state[RESIDUAL]
+
+    @property
+    def armed(self) -> bool:
+        """Whether the detection has started (000 Sec. V-D)."""
+        return bool(self._state[ARMED])
 
     def outputs(self) -> dict:
-        return {"cusum": np.array(self.cusum), "speed_cusum": np.array(self.speed_cusum),
-                "residual": np.array(self.residual)}
+        published = self._state[OUTPUTS].copy()                     # one copy, three views of it
+        return {"cusum": published[CUSUM], "speed_cusum": published[SPEED_CUSUM], "residual": published[RESIDUAL]}
 
     def status(self) -> dict:
-        return {**self._alarm.status(), "cusum": list(self.cusum), "speed_cusum": list(self.speed_cusum),
-                "armed": self.armed}
+        alarm, values = self._alarm, self._state[:ARMED + 1].tolist()
+        return {"alarm": alarm.alarm, "alarm_time": alarm.alarm_time, "isolated": alarm.isolated,
+                "cusum": values[CUSUM], "speed_cusum": values[SPEED_CUSUM], "armed": values[ARMED] == 1.0}
+
+
+@njit(cache=True)
+def _step(gyro, accel, rotor_speed, command, state, constants):  # pragma: no cover (compiled)
+    """One sample, in place on `state` (layout at STATE_SIZE): steps 1-6 of the module docstring. `command` is
+    empty when unknown. Returns the rotor the alarm isolates, NO_ALARM, or NON_FINITE (state untouched) for a
+    reading or command that is not finite."""
+    sample = _sample(gyro, accel, rotor_speed)
+    if sample.size == 0:
+        return NON_FINITE
+    for value in command:
+        if not math.isfinite(value):
+            return NON_FINITE
+    started = state[STARTED] == 1.0
+    _speed_test(sample[3:], command, state, constants, started)
+    filtered = biquad_step(constants[LOWPASS], state[LOWPASS_MEMORY].reshape(2, 7), sample, not started)
+    p_last, q_last = state[LAST_P], state[LAST_Q]
+    state[LAST_P], state[LAST_Q], state[STARTED] = filtered[0], filtered[1], 1.0
+    omega2 = np.empty(4)
+    for i in range(4):
+        omega2[i] = filtered[3 + i] * filtered[3 + i]
+    B = constants[B_ROWS].reshape(3, 4)
+    if state[ARMED] == 0.0:                                          # take-off gating (000 Sec. V-D)
+        state[ARMED] = abs(_dot(B[2], omega2)) >= constants[ARMING_THRUST]
+    if not started or state[ARMED] == 0.0:
+        return NO_ALARM
+    dt = constants[DT]
+    z = ((filtered[0] - p_last) / dt, (filtered[1] - q_last) / dt, filtered[2])   # 000 eq. (10), (13)
+    _residual(z, omega2, B, state, constants[BASELINE_GAIN])
+    _cusum(omega2, state, constants)
+    use_speed = constants[SPEED_TEST] == 1.0 and command.size > 0
+    return _decision(state, constants[THRESHOLD], constants[SPEED_THRESHOLD], use_speed)
+
+
+@njit(cache=True)
+def _speed_test(speed, command, state, constants, started):  # pragma: no cover (compiled)
+    """Step 5: the one-step motor-speed residual and its one-sided CUSUM h from the last measured speeds (once
+    `started`), then these speeds become the last."""
+    last, h = state[LAST_SPEEDS], state[SPEED_CUSUM]
+    omega_min, span, gain = constants[OMEGA_MIN], constants[OMEGA_SPAN], constants[MOTOR_GAIN]
+    for i in range(min(command.size, 4) if started else 0):
+        predicted = last[i] + gain * (omega_min + command[i] * span - last[i])   # first-order lag (000 Sec. III-A)
+        step = (speed[i] - predicted) / constants[SPEED_SIGMA] - constants[SPEED_DRIFT]
+        h[i] = _clip_cusum(h[i] + step)                                           # Page 1954
+    for i in range(4):
+        last[i] = speed[i]
+
+
+@njit(cache=True)
+def _residual(z, omega2, B, state, gain):  # pragma: no cover (compiled)
+    """Step 3: e = r - b for r = z - B omega^2 (000 eq. 12, k = 1), then the baseline b moves toward r; b starts
+    at the first r."""
+    baseline, e = state[BASELINE], state[RESIDUAL]
+    for c in range(3):
+        r = z[c] - _dot(B[c], omega2)
+        if state[BASELINE_SET] == 0.0:
+            baseline[c] = r
+        e[c] = r - baseline[c]
+        baseline[c] = baseline[c] + gain * (r - baseline[c])
+    state[BASELINE_SET] = 1.0
+
+
+@njit(cache=True)
+def _cusum(omega2, state, constants):  # pragma: no cover (compiled)
+    """Step 4: g_i = max(0, g_i + theta_i^T Sigma^-1 (e - theta_i / 2)) per rotor (Page 1954; Basseville &
+    Nikiforov 1993, ch. 2), theta_i = -nu B_i omega_i^2 (000 eq. 12, k_i = 0)."""
+    (e0, e1, e2), (v0, v1, v2) = state[RESIDUAL], constants[INVERSE_VARIANCE]
+    shifts, g = constants[SHIFTS].reshape(4, 3), state[CUSUM]
+    for i in range(4):
+        t0, t1, t2 = shifts[i, 0] * omega2[i], shifts[i, 1] * omega2[i], shifts[i, 2] * omega2[i]
+        step = t0 * v0 * (e0 - 0.5 * t0) + t1 * v1 * (e1 - 0.5 * t1) + t2 * v2 * (e2 - 0.5 * t2)  # the LLR
+        g[i] = _clip_cusum(g[i] + step)
+
+
+@njit(cache=True)
+def _decision(state, threshold, speed_threshold, use_speed):  # pragma: no cover (compiled)
+    """Step 6: of the rotors whose g passes `threshold` (and, with `use_speed`, whose h passes `speed_threshold`)
+    the one of the largest g (the first of equals), else NO_ALARM."""
+    g, h = state[CUSUM], state[SPEED_CUSUM]
+    isolated = NO_ALARM
+    for i in range(4):
+        if g[i] > threshold and (not use_speed or h[i] > speed_threshold) and (
+                isolated == NO_ALARM or g[i] > g[isolated]):
+            isolated = i
+    return isolated
+
+
+@njit(cache=True)
+def _clip_cusum(value):  # pragma: no cover (compiled)
+    """min(max(0, value), CUSUM_CEILING) with Python's max and min."""
+    value = value if value > 0.0 else 0.0
+    return CUSUM_CEILING if value > CUSUM_CEILING else value
+
+
+@njit(cache=True)
+def _dot(row, values):  # pragma: no cover (compiled)
+    """The dot product of two arrays of 4 floats, summed left to right."""
+    return row[0] * values[0] + row[1] * values[1] + row[2] * values[2] + row[3] * values[3]
 
 
 def loe_cusum_wrapper(env, G="vehicle", G_scale: float = 1.0, motor="vehicle", **kwargs):
@@ -187,11 +284,6 @@ def loe_cusum_wrapper(env, G="vehicle", G_scale: float = 1.0, motor="vehicle", *
         motor = {"motor_time_constant": params.motor_time_constant, "omega_min": params.omega_min,
                  "omega_max": params.omega_max}
     return DetectorWrapper(env, LoeCusumDetector(dt, G=tuple(np.asarray(G) * G_scale), **{**(motor or {}), **kwargs}))
-
-
-def _dot(row: list, values: list) -> float:
-    """The dot product of two lists of 4 floats, summed left to right."""
-    return row[0] * values[0] + row[1] * values[1] + row[2] * values[2] + row[3] * values[3]
 
 
 def _reject_non_finite(readings: dict, command) -> None:

@@ -11,20 +11,28 @@ Pipeline per sample (000 Fig. 3):
    z = [p_dot, q_dot, a_z] = H(omega) x with H = diag(G) S diag(omega^2) (eq. 9, 12), k bounded to [0, 1.5].
 4. Failure probability P(k_i < k_thres) (eq. 15, corrected: see `failure_probability`) and decision eq. (16).
 Detection starts once the rotors produce a set share of the weight (take-off gating, Sec. V-D).
+
+The per-sample arithmetic of all four steps and the decision is one compiled function (numba: `_step`, on the
+detector's state and constants packed in two arrays, as numba's call cost grows with each argument). It keeps the
+operations of the plain-Python detector it replaced in the same order, numpy's BLAS products inside numba, and
+scipy's erf (`_erf`), so every output keeps its bits.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
 
+import llvmlite.binding as llvm
 import numpy as np
+from numba import njit, types
+from numba.extending import get_cython_function_address
 from scipy import signal
 from scipy.special import erf
 
 from ..models.constants import GRAVITY
 from ..settings import updated
 from . import kalman
-from .base import AlarmLatch, Biquad
+from .base import AlarmLatch, biquad_constants, biquad_step
 
 #: 000 eq. (9): signs of each rotor's contribution to p_dot, q_dot and a_z for rotors r1..r4 of Fig. 2.
 SIGNS_000 = np.array([[1.0, -1.0, -1.0, 1.0],
@@ -42,6 +50,23 @@ TABLE_II = {"G": (100e-6, 100e-6, 5e-6), "Q": 0.1, "R": 1.0, "k_threshold": 0.25
 Q_PER_SAMPLE = TABLE_II["Q"] * TABLE_II["step_size"]
 VARIANCE_CEILING = 1e6  # published k_var is clipped here (the unobservable direction's variance grows without bound)
 
+#: The detector's state (`LoeKalmanDetector._state`): what `outputs` publishes (k_hat, k_var, p_fail), two flags
+#: (1.0 true: the detection is armed, a sample was seen), the last filtered p and q, P (4 x 4, row-major) and the
+#: low-pass's memory (2 x 7 channels: p, q, a_z, omega_1..4).
+K_HAT, K_VAR, P_FAIL, OUTPUTS, ARMED, STARTED = slice(0, 4), slice(4, 8), slice(8, 12), slice(0, 12), 12, 13
+LAST_P, LAST_Q, COVARIANCE, LOWPASS_MEMORY, STATE_SIZE = 14, 15, slice(16, 32), slice(32, 46), 46
+#: Its constants (`LoeKalmanDetector._constants`): B (3 x 4, row-major), Q (4 x 4), the low-pass
+#: (`biquad_constants`), then dt, r, k_thres, the P_fail threshold, the bounds on k and the thrust that arms it.
+B_ROWS, Q_MATRIX, LOWPASS = slice(0, 12), slice(12, 28), slice(28, 36)
+DT, R_NOISE, K_THRESHOLD, P_FAIL_THRESHOLD, K_LOW, K_HIGH, ARMING_THRUST = range(36, 43)
+NO_ALARM, NON_FINITE = -1, -2          # `_step`'s answers besides the rotor it isolates
+
+#: scipy.special.erf of a double, callable from compiled code: the C function of scipy's Cython API
+#: (scipy.special.cython_special), bound by symbol name so numba can cache its callers. numba's math.erf, the C
+#: library's, differs from it by 1-2 ulp on about a third of the values this detector meets.
+llvm.add_symbol("ftcgym_scipy_erf", get_cython_function_address("scipy.special.cython_special", "__pyx_fuse_1erf"))
+_erf = types.ExternalFunction("ftcgym_scipy_erf", types.float64(types.float64, types.intc))
+
 
 def lowpass_coefficients(wn: float, zeta: float, dt: float):
     """Discrete (b, a) of the 000 Sec. IV-A low-pass by the bilinear (Tustin) transform."""
@@ -53,34 +78,36 @@ def failure_probability(k_hat, variance, k_threshold: float) -> np.ndarray:
     """(P_fail)_i = P(k_i < k_thres) = 0.5 (1 + erf((k_thres - k_hat_i) / (sigma_i sqrt(2)))), sigma_i = sqrt(P_ii).
 
     000 eq. (15) as printed computes P(k_i > k_thres) and divides by the variance instead of the standard
-    deviation (erratum, docs/references.md); this is the intended value, the normal CDF at k_thres.
+    deviation (erratum, docs/references.md); this is the intended value, the normal CDF at k_thres. The detector
+    computes it compiled (`_failure_probability`), with the same bits.
     """
-    k_hat, variance = np.broadcast_arrays(np.asarray(k_hat, dtype=float), np.asarray(variance, dtype=float))
-    return np.reshape(_failure_probability(k_hat.ravel().tolist(), variance.ravel().tolist(), k_threshold), k_hat.shape)
+    k_hat, variance = np.asarray(k_hat, dtype=float), np.asarray(variance, dtype=float)
+    return 0.5 * (1.0 + erf((k_threshold - k_hat) / (np.sqrt(np.maximum(variance, 1e-300)) * math.sqrt(2.0))))
 
 
-def _failure_probability(k_hat: list, variance: list, k_threshold: float) -> list:
-    """`failure_probability` on lists of floats: the same operations per element as on arrays (math.sqrt and max
-    round as np.sqrt and np.maximum do), without numpy's per-call cost; erf stays scipy's."""
-    root2 = math.sqrt(2.0)
-    return [0.5 * (1.0 + float(erf((k_threshold - k) / (math.sqrt(max(v, 1e-300)) * root2))))
-            for k, v in zip(k_hat, variance)]
+@njit(cache=True)
+def _failure_probability(k_hat, variance, k_threshold):  # pragma: no cover (compiled)
+    """`failure_probability` of one rotor (eq. 15, corrected), its operations in the same order."""
+    sigma = math.sqrt(1e-300 if variance < 1e-300 else variance)     # max(variance, 1e-300), NaN kept
+    return 0.5 * (1.0 + _erf((k_threshold - k_hat) / (sigma * math.sqrt(2.0)), 0))
 
 
-def _inverse_cholesky_factor(S: list, r: float) -> tuple:
-    """M = L^-1 (rows of floats) for L the lower-triangular Cholesky factor of A = S + r I = L L^T, S a symmetric
-    3 x 3 (rows of floats). L column by column, l_jj = sqrt(a_jj - sum_k<j l_jk^2), l_ij = (a_ij - sum_k<j l_ik l_jk)
-    / l_jj (Golub & Van Loan, Matrix Computations, 4th ed., 2013, Sec. 4.2); then M, lower triangular, by forward
-    substitution: m_ii = 1 / l_ii, m_ij = -m_ii sum_j<=k<i l_ik m_kj (ibid. Sec. 3.1)."""
-    (s00, s01, s02), (_, s11, s12), (_, _, s22) = S
-    l00 = math.sqrt(s00 + r)
-    l10, l20 = s01 / l00, s02 / l00
-    l11 = math.sqrt(s11 + r - l10 * l10)
-    l21 = (s12 - l20 * l10) / l11
-    l22 = math.sqrt(s22 + r - l20 * l20 - l21 * l21)
-    m00, m11, m22 = 1.0 / l00, 1.0 / l11, 1.0 / l22
-    m10 = -m11 * l10 * m00
-    return (m00, 0.0, 0.0), (m10, m11, 0.0), (-m22 * (l20 * m00 + l21 * m10), -m22 * l21 * m11, m22)
+@njit(cache=True)
+def _inverse_cholesky_factor(S, r):  # pragma: no cover (compiled)
+    """M = L^-1 (3 x 3) for L the lower-triangular Cholesky factor of A = S + r I = L L^T, S a symmetric 3 x 3
+    (its upper triangle is read). L column by column, l_jj = sqrt(a_jj - sum_k<j l_jk^2), l_ij = (a_ij - sum_k<j
+    l_ik l_jk) / l_jj (Golub & Van Loan, Matrix Computations, 4th ed., 2013, Sec. 4.2); then M, lower triangular,
+    by forward substitution: m_ii = 1 / l_ii, m_ij = -m_ii sum_j<=k<i l_ik m_kj (ibid. Sec. 3.1)."""
+    l00 = math.sqrt(S[0, 0] + r)
+    l10, l20 = S[0, 1] / l00, S[0, 2] / l00
+    l11 = math.sqrt(S[1, 1] + r - l10 * l10)
+    l21 = (S[1, 2] - l20 * l10) / l11
+    l22 = math.sqrt(S[2, 2] + r - l20 * l20 - l21 * l21)
+    M = np.zeros((3, 3))
+    M[0, 0], M[1, 1], M[2, 2] = 1.0 / l00, 1.0 / l11, 1.0 / l22
+    M[1, 0] = -M[1, 1] * l10 * M[0, 0]
+    M[2, 0], M[2, 1] = -M[2, 2] * (l20 * M[0, 0] + l21 * M[1, 0]), -M[2, 2] * l21 * M[1, 1]
+    return M
 
 
 def kalman_step(x, P, z, H, Q, R, k_bounds=(0.0, 1.5)):
@@ -88,6 +115,36 @@ def kalman_step(x, P, z, H, Q, R, k_bounds=(0.0, 1.5)):
     P = kalman.predict(P, Q)                    # P_k|k-1 = P_k-1 + Q
     x, P, _, _ = kalman.update(x, P, z - H @ x, H, R)
     return np.minimum(np.maximum(x, k_bounds[0]), k_bounds[1]), P
+
+
+@njit(cache=True)
+def _kalman_step(x, P, z, H, Q, r, k_low, k_high):  # pragma: no cover (compiled)
+    """`kalman_step` (000 Algorithm 1, then the bound on k; R = r I) with the gain through the Cholesky factor L
+    of the innovation covariance instead of a solve; x and P in place:
+        P- = P + Q,  U = P- H^T,  S = H U + R = L L^T,  V = U L^-T  (the gain K = U S^-1 = V L^-1),
+        x+ = x + V L^-1 (z - H x),  P+ = P- - K S K^T = P- - V V^T.
+    For this gain P+ equals the Joseph form `kalman.update` uses (Simon 2006, eq. 5.19); here it is exactly
+    symmetric (V V^T is). It differs from `kalman_step` by rounding only."""
+    P_prior = np.empty((4, 4))
+    for i in range(4):
+        for j in range(4):
+            P_prior[i, j] = P[i, j] + Q[i, j]                    # P_k|k-1 = P_k-1 + Q
+    U = np.dot(P_prior, H.T)
+    L_inv = _inverse_cholesky_factor(np.dot(H, U), r)
+    V = np.dot(U, L_inv.T)
+    h = np.dot(H, x)
+    y0, y1, y2 = z[0] - h[0], z[1] - h[1], z[2] - h[2]           # the innovation z - H x
+    w0 = L_inv[0, 0] * y0                                        # L^-1 (z - H x)
+    w1 = L_inv[1, 0] * y0 + L_inv[1, 1] * y1
+    w2 = L_inv[2, 0] * y0 + L_inv[2, 1] * y1 + L_inv[2, 2] * y2
+    for i in range(4):
+        k = x[i] + V[i, 0] * w0 + V[i, 1] * w1 + V[i, 2] * w2
+        k = k_low if k_low > k else k                            # the bound on k (Sec. IV-B), as Python's max, min
+        x[i] = k_high if k_high < k else k
+    VVt = np.dot(V, V.T)
+    for i in range(4):
+        for j in range(4):
+            P[i, j] = P_prior[i, j] - VVt[i, j]
 
 
 @dataclass(frozen=True)
@@ -135,75 +192,112 @@ class LoeKalmanDetector:
             raise ValueError(f"dt: must be a finite number > 0, got {dt!r}")
         self.dt = float(dt)
         self.B = effectiveness_matrix(s)
-        self._heave_row = self.B[2].tolist()
-        self._omega2_rows = np.empty((3, 4))
         if not (math.isfinite(s.R) and s.R > 0):                   # S = H P H^T + R must be positive definite
             raise ValueError(f"R: must be a finite number > 0, got {s.R!r}")
-        self.Q, self.r = s.Q * np.eye(4), float(s.R)
-        self.k_threshold, self.p_fail_threshold = s.k_threshold, s.p_fail_threshold
-        self.k_bounds = s.k_bounds
-        self.takeoff_fraction = s.takeoff_fraction
-        self.initial_variance = s.initial_variance
-        self._coefficients = lowpass_coefficients(s.filter_wn, s.filter_zeta, self.dt)
+        k_low, k_high = s.k_bounds
+        lowpass = biquad_constants(*lowpass_coefficients(s.filter_wn, s.filter_zeta, self.dt))
+        self._constants = np.concatenate((self.B.ravel(), (s.Q * np.eye(4)).ravel(), lowpass, (
+            self.dt, s.R, s.k_threshold, s.p_fail_threshold, k_low, k_high, s.takeoff_fraction * GRAVITY)))
+        self._state = np.zeros(STATE_SIZE)
         self._alarm = AlarmLatch()
         self.reset()
 
     def reset(self) -> None:
-        self.x = np.ones(4)
-        self.P = self.initial_variance * np.eye(4)
-        self.p_fail = [0.0] * 4
-        self._filter = Biquad(*self._coefficients)
-        self._previous_rates = None
-        self.armed = False
+        P = self.settings.initial_variance * np.eye(4)
+        self._state[:] = 0.0
+        self._state[K_HAT], self._state[COVARIANCE] = 1.0, P.ravel()
+        self._state[K_VAR] = np.minimum(P.diagonal(), VARIANCE_CEILING)
         self._alarm.reset()
 
     def update(self, readings: dict, time: float, command=None) -> None:
-        gyro, accel = readings["gyro"].tolist(), readings["accel"].tolist()
-        sample = [gyro[0], gyro[1], accel[2], *readings["rotor_speed"].tolist()]
-        if not math.isfinite(sum(sample)):                           # one check; the key only on failure
+        """One sample, compiled (`_step`); a non-finite reading raises ValueError naming it, the state untouched."""
+        rotor = _step(readings["gyro"], readings["accel"], readings["rotor_speed"], self._state, self._constants)
+        if rotor >= 0:
+            self._alarm.trigger(time, rotor)
+        elif rotor == NON_FINITE:
             _reject_non_finite(readings)
-        filtered = self._filter(sample)
-        previous, self._previous_rates = self._previous_rates, filtered
-        omega2 = [w * w for w in filtered[3:]]
-        if not self.armed:
-            self.armed = abs(sum(b * w for b, w in zip(self._heave_row, omega2))) >= self.takeoff_fraction * GRAVITY
-        if previous is None or not self.armed:
-            return
-        z = [(filtered[0] - previous[0]) / self.dt,                  # eq. (10): p_dot, q_dot by backward difference
-             (filtered[1] - previous[1]) / self.dt, filtered[2]]     # eq. (13): a_z itself
-        self._omega2_rows[:] = omega2                                # omega^2 on every row: H without broadcasting
-        k_hat = self._kalman_step(z, self.B * self._omega2_rows)     # eq. (12): H = B diag(omega^2)
-        self.p_fail = _failure_probability(k_hat, self.P.diagonal().tolist(), self.k_threshold)
-        worst = max(self.p_fail)
-        if worst > self.p_fail_threshold:                           # eq. (16)
-            self._alarm.trigger(time, self.p_fail.index(worst))
 
-    def _kalman_step(self, z: list, H: np.ndarray) -> list:
-        """`kalman_step` (000 Algorithm 1, then the bound on k; R = r I) with the gain through the Cholesky factor
-        L of the innovation covariance instead of a solve; sets x and P, returns x as floats:
-            P- = P + Q,  U = P- H^T,  S = H U + R = L L^T,  V = U L^-T  (the gain K = U S^-1 = V L^-1),
-            x+ = x + V L^-1 (z - H x),  P+ = P- - K S K^T = P- - V V^T.
-        For this gain P+ equals the Joseph form `kalman.update` uses (Simon 2006, eq. 5.19); here it is exactly
-        symmetric (V V^T by a symmetric product). It differs from `kalman_step` by rounding only."""
-        P = self.P + self.Q                                          # P_k|k-1 = P_k-1 + Q
-        U = P.dot(H.T)
-        L_inv = _inverse_cholesky_factor(H.dot(U).tolist(), self.r)
-        V = U.dot(np.array(L_inv).T)
-        (i00, _, _), (i10, i11, _), (i20, i21, i22) = L_inv
-        (z0, z1, z2), (h0, h1, h2) = z, H.dot(self.x).tolist()
-        y0, y1, y2 = z0 - h0, z1 - h1, z2 - h2                       # the innovation z - H x
-        w0, w1, w2 = i00 * y0, i10 * y0 + i11 * y1, i20 * y0 + i21 * y1 + i22 * y2   # L^-1 (z - H x)
-        lo, hi = self.k_bounds
-        x = [min(max(k + v0 * w0 + v1 * w1 + v2 * w2, lo), hi) for k, (v0, v1, v2) in zip(self.x.tolist(), V.tolist())]
-        self.x, self.P = np.array(x), P - V.dot(V.T)
-        return x
+    @property
+    def x(self) -> np.ndarray:
+        """k_hat, the effectiveness estimates (a view of the state)."""
+        return self._state[K_HAT]
+
+    @property
+    def P(self) -> np.ndarray:
+        """Their covariance (a view of the state)."""
+        return self._state[COVARIANCE].reshape(4, 4)
+
+    @property
+    def armed(self) -> bool:
+        """Whether the detection has started (Sec. V-D)."""
+        return bool(self._state[ARMED])
 
     def outputs(self) -> dict:
-        return {"k_hat": self.x.copy(), "k_var": np.minimum(self.P.diagonal(), VARIANCE_CEILING),
-                "p_fail": np.array(self.p_fail)}
+        published = self._state[OUTPUTS].copy()                     # one copy, three views of it
+        return {"k_hat": published[K_HAT], "k_var": published[K_VAR], "p_fail": published[P_FAIL]}
 
     def status(self) -> dict:
-        return {**self._alarm.status(), "k_hat": self.x.tolist(), "p_fail": list(self.p_fail), "armed": self.armed}
+        alarm, values = self._alarm, self._state[:ARMED + 1].tolist()
+        return {"alarm": alarm.alarm, "alarm_time": alarm.alarm_time, "isolated": alarm.isolated,
+                "k_hat": values[K_HAT], "p_fail": values[P_FAIL], "armed": values[ARMED] == 1.0}
+
+
+@njit(cache=True)
+def _step(gyro, accel, rotor_speed, state, constants):  # pragma: no cover (compiled)
+    """One sample, in place on `state` (layout at STATE_SIZE): the low-pass (Sec. IV-A), the rates' backward
+    difference (eq. 10), the Kalman step (Algorithm 1, `_kalman_step`), P_fail (eq. 15) and the decision
+    (eq. 16). Returns the rotor the alarm isolates, NO_ALARM, or NON_FINITE (state untouched) for a reading that
+    is not finite."""
+    sample = _sample(gyro, accel, rotor_speed)
+    if sample.size == 0:
+        return NON_FINITE
+    started = state[STARTED] == 1.0
+    filtered = biquad_step(constants[LOWPASS], state[LOWPASS_MEMORY].reshape(2, 7), sample, not started)
+    p_last, q_last = state[LAST_P], state[LAST_Q]
+    state[LAST_P], state[LAST_Q], state[STARTED] = filtered[0], filtered[1], 1.0
+    B, H = constants[B_ROWS].reshape(3, 4), np.empty((3, 4))
+    for j in range(4):
+        omega2 = filtered[3 + j] * filtered[3 + j]
+        for i in range(3):
+            H[i, j] = B[i, j] * omega2                            # eq. (12): H = B diag(omega^2)
+    if state[ARMED] == 0.0:                                      # take-off gating (Sec. V-D)
+        state[ARMED] = abs(H[2, 0] + H[2, 1] + H[2, 2] + H[2, 3]) >= constants[ARMING_THRUST]
+    if not started or state[ARMED] == 0.0:
+        return NO_ALARM
+    dt = constants[DT]
+    z = ((filtered[0] - p_last) / dt, (filtered[1] - q_last) / dt,   # eq. (10): p_dot, q_dot by backward difference
+         filtered[2])                                                 # eq. (13): a_z itself
+    P = state[COVARIANCE].reshape(4, 4)
+    _kalman_step(state[K_HAT], P, z, H, constants[Q_MATRIX].reshape(4, 4), constants[R_NOISE], constants[K_LOW],
+                 constants[K_HIGH])
+    k_hat, k_var, p_fail = state[K_HAT], state[K_VAR], state[P_FAIL]
+    for i in range(4):
+        k_var[i] = VARIANCE_CEILING if P[i, i] > VARIANCE_CEILING else P[i, i]   # np.minimum: NaN kept
+        p_fail[i] = _failure_probability(k_hat[i], P[i, i], constants[K_THRESHOLD])   # eq. (15)
+    return _first_above(p_fail, constants[P_FAIL_THRESHOLD])                     # eq. (16)
+
+
+@njit(cache=True)
+def _sample(gyro, accel, rotor_speed):  # pragma: no cover (compiled)
+    """The channels the detectors read, [p, q, a_z, omega_1..4], or an empty array if one is not finite."""
+    sample = np.empty(7)
+    sample[0], sample[1], sample[2] = gyro[0], gyro[1], accel[2]
+    for i in range(4):
+        sample[3 + i] = rotor_speed[i]
+    for value in sample:
+        if not math.isfinite(value):
+            return sample[:0]
+    return sample
+
+
+@njit(cache=True)
+def _first_above(p_fail, threshold):  # pragma: no cover (compiled)
+    """Eq. (16): the rotor of the largest P_fail (the first of equals) if it passes the threshold, else NO_ALARM."""
+    worst = 0
+    for i in range(1, p_fail.size):
+        if p_fail[i] > p_fail[worst]:
+            worst = i
+    return worst if p_fail[worst] > threshold else NO_ALARM
 
 
 def loe_kalman_wrapper(env, G="vehicle", G_scale: float = 1.0, **kwargs):
