@@ -232,6 +232,21 @@ class LoeKalmanDetector:
         """Whether the detection has started (Sec. V-D)."""
         return bool(self._state[ARMED])
 
+    @property
+    def p_fail(self) -> np.ndarray:
+        """P_fail of each rotor (eq. 15; a view of the state)."""
+        return self._state[P_FAIL]
+
+    @property
+    def k_threshold(self) -> float:
+        """k_thres of eq. (15), from the settings (read-only: the compiled step holds it from construction)."""
+        return self.settings.k_threshold
+
+    @property
+    def p_fail_threshold(self) -> float:
+        """The P_fail threshold of eq. (16), from the settings (read-only, as `k_threshold`)."""
+        return self.settings.p_fail_threshold
+
     def outputs(self) -> dict:
         published = self._state[OUTPUTS].copy()                     # one copy, three views of it
         return {"k_hat": published[K_HAT], "k_var": published[K_VAR], "p_fail": published[P_FAIL]}
