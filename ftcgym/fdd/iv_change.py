@@ -547,8 +547,8 @@ class IvChangeDetector:
         self.gate, self.max_yaw_rate = s.gate, float(s.max_yaw_rate)
         self.yaw_coupling = bool(s.yaw_coupling)
         # None: no accelerometer-bias estimate (it only matters through the yaw coupling)
-        self.accel_bias = (AccelBiasEstimate(s.accel_bias_prior)
-                           if s.yaw_coupling and s.accel_bias_prior is not None else None)
+        self._bias_prior = (float(s.accel_bias_prior)
+                            if s.yaw_coupling and s.accel_bias_prior is not None else None)
         self.test, self.wind_threshold = s.test, float(s.wind_threshold)
         self.wind_test = WindDragTest(mass, lambda_1, rotor_drag, s, self.dt) if s.test == "wind" else None
         self._keys = READ_KEYS + (WIND_TEST_KEYS if self.wind_test is not None else ())
@@ -565,7 +565,7 @@ class IvChangeDetector:
             c, self.T, self.dt, s.kp, s.kd, s.k_att, s.k_yaw, self.max_rate, self.gate_hold, GATES[s.gate],
             self.max_yaw_rate)
         head[[K_YAW_COUPLING, K_HAS_BIAS, K_LAM, K_LAM_N, K_N_W, K_LAM_ESTIMATE, K_MIN_EXCITATION, K_WARMUP]] = (
-            self.yaw_coupling, self.accel_bias is not None, float(s.lam), float(s.lam) ** int(s.n_w), s.n_w,
+            self.yaw_coupling, self._bias_prior is not None, float(s.lam), float(s.lam) ** int(s.n_w), s.n_w,
             float(s.lam_estimate), self.min_excitation, self.warmup)
         head[[K_CUSUM_RATIO, K_CUSUM_THRESHOLD, K_TEST_IV, K_RATIO_THRESHOLD, K_ALARM_HOLD, K_THRESHOLD]] = (
             self.cusum_ratio, self.cusum_threshold, s.test == "iv",
@@ -597,8 +597,8 @@ class IvChangeDetector:
         state[[BELOW_SINCE, SCALE, WIND_NEXT]] = math.nan       # None: not below the ratio, no scale, no step yet
         state[GATE_UNTIL] = -math.inf
         state[C_HAT] = self.c          # the nominal value until the instruments have excited the model
-        if self.accel_bias is not None:
-            state[BIAS_SUMS + 5] = self.accel_bias.prior       # the ridge sits in the sums from the start
+        if self._bias_prior is not None:
+            state[BIAS_SUMS + 5] = self._bias_prior             # the ridge sits in the sums from the start
         if self.wind_test is not None:
             self.wind_test.reset()
 
