@@ -41,10 +41,11 @@ Where ftcgym departs from or adapts the paper (also noted at the code):
   with T_0. Isolation: the rotor whose LOE estimate is largest above `isolation_threshold`.
 - The LOE estimates are not clipped to [0, 1]: clipping would bias them, and 002 values their unbiasedness.
 
-The per-sample arithmetic is compiled (numba: `_step` and the functions it calls, `kalman.predict` and `update`
-and geometry's rotation helpers among them) with the numpy operations of the plain-numpy filter it replaced, in the
-same order and array layouts: numba's `dot` and `solve` make the BLAS and LAPACK calls numpy's make, so the
-estimates keep their bits.
+Each `update` is one compiled call (numba: `_step`, on the filter's state and constants packed in two arrays,
+as numba's call cost grows with each argument), the detection and the outputs included. It keeps the numpy
+operations of the plain-numpy filter it replaced, in the same order and array layouts (numba's `dot` and `solve`
+make the BLAS and LAPACK calls numpy's make), except where H, a selection, makes a product a pick of entries with
+the same bits (`_correct`); so the estimates keep their bits.
 """
 from __future__ import annotations
 
@@ -65,10 +66,27 @@ from .wrapper import DetectorWrapper
 N_X = 21
 POS, VEL, ETA, OMEGA, BIAS, LOE, DIST = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15),
                                          slice(15, 19), slice(19, 21))
-PSI = 8
+PSI, BIAS_0, LOE_0 = 8, 12, 15            # the yaw state, the first bias and LOE states
 _GRAVITY = np.array((0.0, 0.0, GRAVITY))
 _NO_COMMAND = np.empty(0)
-_REJECTED = -1.0                        # `_step`'s answer to a non-finite reading or command (the statistic is >= 0)
+#: The detector's state (`AugmentedEkfDetector._state`): x, P (row-major), the previous sample's rotor speeds and
+#: held position and velocity, the innovation accumulators of eq. (42) (acc, acc_w, z), what `outputs` publishes
+#: (the LOE estimates, their standard deviations, the statistic), the first sample's time and two flags (1.0
+#: true): the alarm has fired, it has fired without isolating a rotor yet.
+X, COVARIANCE, OMEGA_PREV, HELD = slice(0, 21), slice(21, 462), slice(462, 466), slice(466, 472)
+ACC, ACC_W, Z = slice(472, 484), slice(484, 496), slice(496, 508)
+PUBLISHED, LOE_OUT, LOE_STD, STATISTIC = slice(508, 517), slice(508, 512), slice(512, 516), 516
+START, ALARMED, PENDING, STATE_SIZE = 517, 518, 519, 520
+LOE_OUT_0, LOE_STD_0 = 508, 512
+#: Its constants (`AugmentedEkfDetector._constants`): Q_d (21 x 21), the diagonal of R (12), the model constants
+#: (`_model`, 41), then dt, the window's forgetting factor, T_0, the isolation threshold and the warm-up.
+Q_MATRIX, R_DIAGONAL, MODEL = slice(0, 441), slice(441, 453), slice(453, 494)
+DT, FORGET, THRESHOLD, ISOLATION_THRESHOLD, WARMUP = range(494, 499)
+#: y's rows (eq. 28-36 plus the gyro, `_measurement`): the state each reads, and the gyro rows' bias state
+MEASURED = np.array((6, 7, 8, 9, 10, 11, 0, 1, 2, 3, 4, 5))
+#: `_step`'s answers besides a rotor the new alarm isolates: nothing new, a non-finite reading (state untouched),
+#: an alarm isolating nothing, and ISOLATED_LATER + i: the first isolation (rotor i) after such an alarm
+NOTHING, REJECTED, ALARM_WITHOUT_ROTOR, ISOLATED_LATER = -1, -2, -3, 10
 #: the constants of f(x, u) in the one array the compiled functions read (`AugmentedEkfDetector._model`): mass,
 #: thrust coefficient c_T, rotor drag coefficient k_d, propeller inertia I_p, linear body drag (FRD) and rotational
 #: drag, inertia J, yaw signs s, the moment matrix A (3 x 4, row-major) and -A / J
@@ -168,6 +186,9 @@ class AugmentedEkfDetector:
         self.H_full = np.zeros((12, N_X))
         for row, block in ((0, ETA), (3, OMEGA), (3, BIAS), (6, POS), (9, VEL)):
             self.H_full[row:row + 3, block] = np.eye(3)
+        self._constants = np.concatenate((self.Q.ravel(), self.R_full.diagonal(), self._model, (
+            self.dt, self._forget, self.threshold, self.isolation_threshold, self.warmup)))
+        self._state = np.zeros(STATE_SIZE)
         self.reset()
 
     @classmethod
@@ -186,16 +207,12 @@ class AugmentedEkfDetector:
 
     # ------------------------------------------------------------------------------------ protocol
     def reset(self) -> None:
-        self.x = np.zeros(N_X)
-        self.P = self._P0.copy()
+        self._state[:] = 0.0
+        self._state[COVARIANCE] = self._P0.ravel()
+        self._state[ACC_W] = 1.0        # sum of squared window weights: var of acc if the model fits
+        _publish(self._state)
         self._latch = AlarmLatch()
         self._start = None
-        self._Omega = np.zeros(4)       # the previous sample's rotor speeds
-        self._held = np.zeros(6)        # and its (held) position and velocity
-        self._acc = np.zeros(12)       # accumulated normalised innovation per channel (eq. 42)
-        self._acc_w = np.ones(12)      # sum of squared window weights: var of _acc if the model fits
-        self.z = np.zeros(12)
-        self.statistic = 0.0
 
     def update(self, readings: dict, time: float, command: np.ndarray | None = None) -> None:
         """One sample: predict from the previous one (eq. 6-12), correct with this one (eq. 13-18), detect (eq. 41-42),
@@ -207,54 +224,84 @@ class AugmentedEkfDetector:
             _check_finite(values, self.KEYS, command, time)  # raises for a non-finite time: only the first gets on
             self._initialise(*values, time)
             return
-        statistic = _step(self.x, self.P, self.Q, self.H_full, self.R_full, self._model, self.dt, self._forget,
-                          self._Omega, self._held, self._acc, self._acc_w, self.z, *values, command)
-        if statistic == _REJECTED:
+        answer = _step(self._state, self._constants, *values, command, time)
+        if answer == NOTHING:
+            return
+        if answer == REJECTED:
             _check_finite(values, self.KEYS, command, time)
-        self._detect(statistic, time)
+        elif answer >= ISOLATED_LATER:
+            self._latch.isolated = answer - ISOLATED_LATER     # the first isolation after the alarm is kept
+        else:
+            self._latch.trigger(time, None if answer == ALARM_WITHOUT_ROTOR else answer)
 
     def outputs(self) -> dict:
-        return {"loe": self.x[LOE].copy(), "loe_std": np.sqrt(self.P.diagonal()[LOE]),
-                "innovation": np.array([self.statistic])}
+        published = self._state[PUBLISHED].copy()              # one copy, three views of it
+        return {"loe": published[0:4], "loe_std": published[4:8], "innovation": published[8:9]}
 
     def status(self) -> dict:
-        return {**self._latch.status(), "loe": self.x[LOE].tolist()}
+        return {**self._latch.status(), "loe": self._state[LOE_OUT].tolist()}
+
+    @property
+    def x(self) -> np.ndarray:
+        """The state estimate (a view of the packed state; assigning copies into it)."""
+        return self._state[X]
+
+    @x.setter
+    def x(self, value) -> None:
+        self._state[X] = value
+
+    @property
+    def P(self) -> np.ndarray:
+        """Its covariance (a view of the packed state; assigning copies into it)."""
+        return self._state[COVARIANCE].reshape(N_X, N_X)
+
+    @P.setter
+    def P(self, value) -> None:
+        self._state[COVARIANCE] = np.asarray(value, dtype=float).ravel()
+
+    @property
+    def _Omega(self) -> np.ndarray:
+        """The previous sample's rotor speeds (a view; assigning copies into it)."""
+        return self._state[OMEGA_PREV]
+
+    @_Omega.setter
+    def _Omega(self, value) -> None:
+        self._state[OMEGA_PREV] = value
+
+    @property
+    def z(self) -> np.ndarray:
+        """The accumulated normalised innovation per channel (eq. 42; a view)."""
+        return self._state[Z]
+
+    @property
+    def statistic(self) -> float:
+        """The detection statistic max_j |z_j|."""
+        return float(self._state[STATISTIC])
 
     # ------------------------------------------------------------------------------------ filter
     def _initialise(self, position, velocity, attitude, gyro, Omega, time: float) -> None:
         """x(0|0) from the first sample (002 assumes all states measured, eq. 28-36); no faults."""
-        self._start = float(time)
+        self._start = self._state[START] = float(time)
         self.x[POS], self.x[VEL] = position, velocity
         self.x[ETA] = euler_from_quat(attitude)
         self.x[OMEGA] = gyro
-        self._Omega[:], self._held[:3], self._held[3:] = Omega, position, velocity
+        self._state[OMEGA_PREV], self._state[HELD][:3], self._state[HELD][3:] = Omega, position, velocity
+        _publish(self._state)
 
     def predict(self, Omega: np.ndarray) -> None:
         """Eq. (6)-(12) from the previous sample's rotor speeds `_Omega`, in place on x and P (`_predict`)."""
         _predict(self.x, self.P, self.Q, np.asarray(Omega, dtype=np.float64), self._Omega, self.dt, self._model)
+        _publish(self._state)
 
     def correct(self, y: np.ndarray) -> None:
         """Eq. (13)-(18) for y = [eta, gyro] or [eta, gyro, p, v], in place on x and P (`_correct`)."""
-        _correct(self.x, self.P, np.asarray(y, dtype=np.float64), self.H_full, self.R_full)
+        _correct(self.x, self.P, np.asarray(y, dtype=np.float64), self.R_full.diagonal().copy())
+        _publish(self._state)
 
     def dynamics(self, x: np.ndarray, Omega: np.ndarray, Omega_dot: np.ndarray):
         """f(x, u) of eq. (43) and its Jacobian F (eq. 9) (`_dynamics`)."""
         return _dynamics(np.asarray(x, dtype=np.float64), np.asarray(Omega, dtype=np.float64),
                          np.asarray(Omega_dot, dtype=np.float64), self._model)
-
-    # ------------------------------------------------------------------------------------ detection
-    def _detect(self, statistic: float, time: float) -> None:
-        """Eq. (41)-(42): alarm when a channel's windowed innovation (`_accumulate`) reaches T_0 sigma."""
-        self.statistic = statistic
-        if statistic >= self.threshold and time - self._start >= self.warmup:
-            self._latch.trigger(time, self._isolate())
-        elif self._latch.alarm and self._latch.isolated is None:
-            self._latch.isolated = self._isolate()             # the first isolation after the alarm is kept
-
-    def _isolate(self) -> int | None:
-        loe = self.x[LOE]
-        i = int(np.argmax(loe))
-        return i if loe[i] > self.isolation_threshold else None
 
 
 def aekf_wrapper(env, **kwargs) -> DetectorWrapper:
@@ -298,21 +345,62 @@ def _blocks(pos, vel, eta, omega, bias, loe, dist) -> np.ndarray:
 
 # ---------------------------------------------------------------------------------------- compiled
 @njit(cache=True)
-def _step(x, P, Q, H_full, R_full, c, dt, forget, Omega_prev, held, acc, acc_w, z, position, velocity, attitude,
-          gyro, Omega, command):  # pragma: no cover (compiled)
-    """One sample after the first, in place: predict (eq. 6-12) from the previous sample's speeds `Omega_prev`,
-    correct (eq. 13-18) with the measurement, accumulate the innovation (eq. 42) into acc, acc_w, z; keeps this
-    sample's speeds and held position and velocity. Returns the statistic max_j |z_j|, or `_REJECTED` (nothing
-    changed) if a reading or the command is not finite."""
+def _step(state, constants, position, velocity, attitude, gyro, Omega, command, time):  # pragma: no cover (compiled)
+    """One sample after the first, in place on `state` (layout at STATE_SIZE): predict (eq. 6-12) from the previous
+    sample's speeds, correct (eq. 13-18) with the measurement, accumulate the innovation (eq. 42), publish the
+    outputs and detect (`_detect`); keeps this sample's speeds and held position and velocity. Returns
+    `_detect`'s answer, or REJECTED (nothing changed) if a reading or the command is not finite."""
     if not (_finite(position) and _finite(velocity) and _finite(attitude) and _finite(gyro) and _finite(Omega)
             and _finite(command)):
-        return _REJECTED
-    _predict(x, P, Q, Omega, Omega_prev, dt, c)
+        return REJECTED
+    x, P, held = state[X], state[COVARIANCE].reshape(N_X, N_X), state[HELD]
+    _predict(x, P, constants[Q_MATRIX].reshape(N_X, N_X), Omega, state[OMEGA_PREV], constants[DT],
+             constants[MODEL])
     fresh = _changed(position, held[:3]) or _changed(velocity, held[3:])   # sample-and-hold: a new sample?
-    gamma, S = _correct(x, P, _measurement(position, velocity, attitude, gyro, fresh), H_full, R_full)
-    Omega_prev[:] = Omega
+    gamma, S = _correct(x, P, _measurement(position, velocity, attitude, gyro, fresh), constants[R_DIAGONAL])
+    state[OMEGA_PREV] = Omega
     held[:3], held[3:] = position, velocity
-    return _accumulate(acc, acc_w, z, gamma, S, forget)
+    state[STATISTIC] = _accumulate(state[ACC], state[ACC_W], state[Z], gamma, S, constants[FORGET])
+    _publish(state)
+    return _detect(state, constants, time)
+
+
+@njit(cache=True)
+def _publish(state):  # pragma: no cover (compiled)
+    """The outputs' block of the state: the LOE estimates and sqrt(P_ii) of their states (the statistic is
+    written by `_step`)."""
+    P = state[COVARIANCE].reshape(N_X, N_X)
+    for i in range(4):
+        state[LOE_OUT_0 + i] = state[LOE_0 + i]
+        state[LOE_STD_0 + i] = np.sqrt(P[LOE_0 + i, LOE_0 + i])
+
+
+@njit(cache=True)
+def _detect(state, constants, time):  # pragma: no cover (compiled)
+    """Eq. (41)-(42): alarm when a channel's windowed innovation (`_accumulate`) reaches T_0 sigma, from `warmup` s
+    after the first sample. Returns the rotor a new alarm isolates (the largest LOE estimate, if above the
+    isolation threshold), ALARM_WITHOUT_ROTOR, ISOLATED_LATER + i for the first isolation after such an alarm, or
+    NOTHING."""
+    if state[STATISTIC] >= constants[THRESHOLD] and time - state[START] >= constants[WARMUP]:
+        if state[ALARMED] == 1.0:
+            return NOTHING
+        rotor = _isolate(state, constants)
+        state[ALARMED], state[PENDING] = 1.0, 1.0 if rotor < 0 else 0.0
+        return ALARM_WITHOUT_ROTOR if rotor < 0 else rotor
+    if state[ALARMED] == 1.0 and state[PENDING] == 1.0:
+        rotor = _isolate(state, constants)
+        if rotor >= 0:
+            state[PENDING] = 0.0
+            return ISOLATED_LATER + rotor
+    return NOTHING
+
+
+@njit(cache=True)
+def _isolate(state, constants):  # pragma: no cover (compiled)
+    """The rotor of the largest LOE estimate (the first of equals) if above the isolation threshold, else -1."""
+    loe = state[LOE]
+    i = np.argmax(loe)
+    return i if loe[i] > constants[ISOLATION_THRESHOLD] else -1
 
 
 @njit(cache=True)
@@ -355,18 +443,53 @@ def _predict(x, P, Q, Omega, Omega_prev, dt, c):  # pragma: no cover (compiled)
 
 
 @njit(cache=True)
-def _correct(x, P, y, H_full, R_full):  # pragma: no cover (compiled)
-    """Eq. (13)-(18) for y = H x + v (H constant, so eq. 15 is exact), in place; returns the innovation gamma
-    (eq. 17) and its covariance S."""
+def _correct(x, P, y, r):  # pragma: no cover (compiled)
+    """Eq. (13)-(18) for y = H x + v (H constant, so eq. 15 is exact; R = diag(r)), in place; returns the
+    innovation gamma (eq. 17) and its covariance S.
+
+    `kalman.update`'s operations with H's structure used: H selects (and, for the gyro, adds the rate and bias
+    states: MEASURED), so H x, P H^T, H P H^T and K H pick and add entries instead of dense products. Each of those
+    sums has at most two nonzero terms, and BLAS adds them to an accumulator starting at 0, so picking them
+    (from 0.0, `_measured`) gives the same bits; K R with R diagonal is one product per entry. The solve and the
+    dense products of the Joseph form (eq. 18) are the same numpy calls on the same arrays."""
     m = y.size
-    H, R = H_full[:m], np.ascontiguousarray(R_full[:m, :m])
-    gamma = y - np.dot(H, x)                                  # eq. (17)
+    gamma = np.empty(m)
+    for j in range(m):
+        gamma[j] = y[j] - _measured(x, j)                     # eq. (17)
     gamma[2] = _wrap(gamma[2])                                # yaw innovation across +-pi
-    # eq. (13)-(16), and eq. (18): the Joseph form
-    x_new, P_new, S, _ = kalman.update(x, P, gamma, H, R)
-    x[:], P[:] = x_new, P_new
+    PHt, S = np.empty((N_X, m)), np.empty((m, m))
+    for i in range(N_X):
+        for j in range(m):
+            PHt[i, j] = _measured(P[i], j)
+    for i in range(m):
+        for j in range(m):
+            S[i, j] = _measured(PHt[:, j], i) + r[i] * (i == j)    # eq. (14)
+    K = np.linalg.solve(S, PHt.T).T                          # eq. (15)
+    A = np.eye(N_X)                                           # I - K H
+    for j in range(m):
+        for i in range(N_X):
+            A[i, MEASURED[j]] -= K[i, j]
+            if 3 <= j < 6:
+                A[i, BIAS_0 + j - 3] -= K[i, j]
+    KR = np.empty((N_X, m))
+    for i in range(N_X):
+        for j in range(m):
+            KR[i, j] = K[i, j] * r[j]
+    P_new = np.dot(np.dot(A, P), A.T) + np.dot(KR, K.T)      # eq. (18)
+    x[:] = x + np.dot(np.asfortranarray(K), gamma)           # eq. (16)
+    P[:] = 0.5 * (P_new + P_new.T)
     x[PSI] = _wrap(x[PSI])
     return gamma, S
+
+
+@njit(cache=True)
+def _measured(v, j):  # pragma: no cover (compiled)
+    """(H v)_j for H of y's row j: the state it reads, plus the bias for the gyro rows (0.0 + v_i: as the BLAS
+    sum starting at 0, so -0.0 reads +0.0)."""
+    value = 0.0 + v[MEASURED[j]]
+    if 3 <= j < 6:
+        value += v[BIAS_0 + j - 3]
+    return value
 
 
 @njit(cache=True)

@@ -71,6 +71,14 @@ choice are in docs/measurements.md, 'Tuning record: fdd/iv_change.py'):
   no mass change can move; it did not help with the J test and has not been measured with c_hat.
 - On `mueller2014` twice the mass gives c x 0.58, not x 0.5: the rotors' drag k omega (in lambda_1)
   grows with the hover speed.
+
+The detector's per-sample arithmetic is one compiled call (numba: `_sample`, with `_grid_step` per grid sample,
+on the detector's state and constants packed in two arrays); only the wind test's Kalman step
+(`WindDragTest.filter_step`, every `period` s) stays numpy. The compiled functions carry out the operations of
+`ReferenceModel`, `LowPassBank`, `IvCost`, `IvEstimate`, `AccelBiasEstimate` and the plain-float steps they
+replaced, in the same order, with the same BLAS product and LAPACK solve (numba's `dot`, `solve`) and CPython's
+`math.remainder` (`_remainder`), so every output keeps its bits; the classes stay as the readable reference
+(the tests check the recursions on them).
 """
 from __future__ import annotations
 
@@ -78,6 +86,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from scipy import signal
 
 from ..models.constants import GRAVITY
@@ -380,6 +389,11 @@ class WindDragTest:
         if time < self._next - 1e-9:
             return False
         self._next += self.period
+        self.filter_step(f, time, self._start)
+        return True
+
+    def filter_step(self, f, time: float, start: float) -> None:
+        """The Kalman filters' step on the filtered channels f (10), `start` the first sample's time; sets `llr`."""
         a, lam_v, lam_r = f[0:2], f[2:4], f[4:10].reshape(2, 3)
         theta = self.theta
         # H_b = [theta_b lambda R^T_xy, I]; z_b = a + theta_b lambda [R^T v]_xy.
@@ -398,12 +412,11 @@ class WindDragTest:
         self.P = IKH @ P @ IKH.transpose(0, 2, 1) + self.r * (K @ K.transpose(0, 2, 1))
         ll = -0.5 * (np.einsum("bi,bij,bj->b", nu, S_inv, nu) + np.log(np.linalg.det(S)))
         ll = ll.reshape(-1, 2)
-        if time - self._start >= self.settle + 1.0:
+        if time - start >= self.settle + 1.0:
             self.level = int(np.argmax(self.fit))
-        if time - self._start >= self.settle - 1e-9:
+        if time - start >= self.settle - 1e-9:
             self.fit = self.forget * self.fit + ll[:, 0]
         self.llr = float(ll[self.level, 1] - ll[self.level, 0])
-        return True
 
 
 @dataclass(frozen=True)
@@ -534,16 +547,38 @@ class IvChangeDetector:
         self.gate, self.max_yaw_rate = s.gate, float(s.max_yaw_rate)
         self.yaw_coupling = bool(s.yaw_coupling)
         # None: no accelerometer-bias estimate (it only matters through the yaw coupling)
-        self.accel_bias = (AccelBiasEstimate(s.accel_bias_prior)
-                           if s.yaw_coupling and s.accel_bias_prior is not None else None)
-        self._filter = (s.cutoff_hz, s.filter_order, self.dt, s.weight_hz)
-        self.reference_model = ReferenceModel(c, self.dt, s.kp, s.kd, s.k_att, s.k_yaw)
-        self.cost = IvCost(s.lam, s.n_w)
-        self.estimate = IvEstimate(s.lam_estimate)
+        self._bias_prior = (float(s.accel_bias_prior)
+                            if s.yaw_coupling and s.accel_bias_prior is not None else None)
         self.test, self.wind_threshold = s.test, float(s.wind_threshold)
         self.wind_test = WindDragTest(mass, lambda_1, rotor_drag, s, self.dt) if s.test == "wind" else None
         self._keys = READ_KEYS + (WIND_TEST_KEYS if self.wind_test is not None else ())
         self.latch = AlarmLatch()
+        lowpass = LowPassBank(s.cutoff_hz, s.filter_order, self.dt, s.weight_hz)
+        air = LowPassBank(s.air_cutoff_hz, s.filter_order, self.dt) if self.wind_test is not None else None
+        n, n_air = len(lowpass._steady), 0 if air is None else len(air._steady)
+        ring, lowpass_at = HEADER, HEADER + 6 * s.n_w
+        ca = K_HEADER
+        air_ca = ca + (n + 1) * (n + 1) + n      # after [C; A], [D; B] and the steady state
+        wind = self.wind_test
+        head = np.zeros(K_HEADER)
+        head[[K_C, K_T, K_DT, K_KP, K_KD, K_ATT, K_YAW, K_MAX_RATE, K_GATE_HOLD, K_GATE, K_MAX_YAW_RATE]] = (
+            c, self.T, self.dt, s.kp, s.kd, s.k_att, s.k_yaw, self.max_rate, self.gate_hold, GATES[s.gate],
+            self.max_yaw_rate)
+        head[[K_YAW_COUPLING, K_HAS_BIAS, K_LAM, K_LAM_N, K_N_W, K_LAM_ESTIMATE, K_MIN_EXCITATION, K_WARMUP]] = (
+            self.yaw_coupling, self._bias_prior is not None, float(s.lam), float(s.lam) ** int(s.n_w), s.n_w,
+            float(s.lam_estimate), self.min_excitation, self.warmup)
+        head[[K_CUSUM_RATIO, K_CUSUM_THRESHOLD, K_TEST_IV, K_RATIO_THRESHOLD, K_ALARM_HOLD, K_THRESHOLD]] = (
+            self.cusum_ratio, self.cusum_threshold, s.test == "iv",
+            math.nan if self.ratio_threshold is None else self.ratio_threshold, self.alarm_hold,
+            math.nan if self.threshold is None else self.threshold)
+        head[[K_WIND, K_LAMBDA_1, K_ROTOR_K, K_HOVER_SUM, K_PERIOD, K_N, K_AIR_N, K_RING, K_LOWPASS]] = (
+            wind is not None, 0.0 if wind is None else wind.lambda_1, 0.0 if wind is None else wind.k,
+            0.0 if wind is None else wind.hover_sum, 0.0 if wind is None else wind.period, n, n_air, ring,
+            lowpass_at)
+        head[[K_AIR_LOWPASS, K_CA, K_AIR_CA]] = lowpass_at + 12 * n, ca, air_ca
+        banks = [bank for bank in (lowpass, air) if bank is not None]
+        self._constants = np.concatenate([head] + [np.concatenate((b._CA.ravel(), b._DB, b._steady)) for b in banks])
+        self._state = np.zeros(lowpass_at + 12 * n + 10 * n_air)
         self.reset()
 
     @classmethod
@@ -556,137 +591,83 @@ class IvChangeDetector:
 
     # ------------------------------------------------------------------------------------- protocol
     def reset(self) -> None:
-        self.cost.reset()
-        self.estimate.reset()
         self.latch.reset()
-        if self.accel_bias is not None:
-            self.accel_bias.reset()
-        self.lowpass = LowPassBank(*self._filter)
-        self._last = None            # (time, filtered channels) of the previous reading
-        self._grid = []              # the last three grid samples (t-2, t-1, t)
-        self._k = 0                  # grid samples taken
-        self._gate_until = -math.inf
-        self._below_since = None     # grid time c_hat / c_0 went under ratio_threshold
-        self.J = (0.0, 0.0)
-        self.residual = (0.0, 0.0)
-        self.c_hat = self.c          # the nominal value until the instruments have excited the model
-        self.cusum = 0.0             # CUSUM g (s) of the IV increments toward c = cusum_ratio c_0
-        self._z2_sum, self._z2_n = 0.0, 0   # instrument power over the warm-up (the CUSUM's unit)
-        self._scale = None
-        self.wind_cusum = 0.0        # CUSUM of the wind test's log-likelihood ratio
+        state = self._state
+        state[:] = 0.0
+        state[[BELOW_SINCE, SCALE, WIND_NEXT]] = math.nan       # None: not below the ratio, no scale, no step yet
+        state[GATE_UNTIL] = -math.inf
+        state[C_HAT] = self.c          # the nominal value until the instruments have excited the model
+        if self._bias_prior is not None:
+            state[BIAS_SUMS + 5] = self._bias_prior             # the ridge sits in the sums from the start
         if self.wind_test is not None:
             self.wind_test.reset()
 
     def update(self, readings: dict, time: float, command=None) -> None:
-        gyro, accel, position, velocity, yaw, *wind_readings = _finite(readings, self._keys)
-        p, q, r = gyro
-        a_x, a_y = accel[0], accel[1]
-        if self._last is None:
-            self.reference_model.start(position, velocity, yaw[0])
-        yaw_rate_hat = self.reference_model.yaw_rate(yaw[0])
-        instruments = self.reference_model.step(position, velocity, yaw[0])
-        if self.gate == "measured":
-            gate_p, gate_q, gate_r = p, q, r
-        else:
-            gate_p, gate_q, gate_r = instruments[2], instruments[3], yaw_rate_hat
-        if self.gate != "none" and (gate_p * gate_p + gate_q * gate_q > self.max_rate * self.max_rate
-                                    or abs(gate_r) > self.max_yaw_rate):
-            self._gate_until = time + self.gate_hold
-        # Channels: measured a_x, a_y, p, q, r a_y, r a_x; instruments a_hat_x, a_hat_y, p_hat, q_hat;
-        # measured and model yaw rates r, r_hat (the accelerometer-bias regressor and its instrument).
-        u = np.array((a_x, a_y, p, q, r * a_y, r * a_x, *instruments, r, yaw_rate_hat))
-        if self._last is None:
-            self._t0 = time
-            self.lowpass.start(u)
-        if (self.wind_test is not None and self.wind_test.update(accel, *wind_readings, time)
-                and time - self._t0 >= self.warmup - 1e-9):
-            self.wind_cusum = max(0.0, self.wind_cusum + self.wind_test.llr)
-            if self.wind_cusum > self.wind_threshold:
-                self.latch.trigger(time)
-        f = self.lowpass.step(u)
-        t_last, f_last = self._last or (time, f)
-        # Resample onto the model's grid t0 + k T by linear interpolation (the signals are slow by now).
-        while (t_k := self._t0 + self._k * self.T) <= time + 1e-9:
-            w = (t_k - t_last) / (time - t_last) if time > t_last else 1.0
-            self._grid_step((f_last + w * (f - f_last)).tolist(), t_k)
-        self._last = (time, f)
+        """One reading, compiled (`_sample`; the wind test's Kalman step, every `period` s, in numpy); a non-finite
+        reading raises ValueError naming it, the state untouched. The wind test's CUSUM (before the grid samples,
+        whose alarms come later in the latch) and the alarm latch are here."""
+        try:
+            values = [_array(readings[key]) for key in self._keys]
+        except KeyError:
+            _finite(readings, self._keys)      # raises the KeyError of the missing reading
+            raise
+        if self.wind_test is None:
+            values += (_EMPTY, _EMPTY, _EMPTY)
+        state = self._state
+        answer = _sample(state, self._constants, *values, time)
+        if answer == WIND_DUE:
+            wind = self.wind_test
+            wind.filter_step(state[WIND_F:WIND_F + 10].copy(), time, state[WIND_START])
+            if time - state[T0] >= self.warmup - 1e-9:
+                state[WIND_CUSUM] = max(0.0, state[WIND_CUSUM] + wind.llr)
+                if state[WIND_CUSUM] > self.wind_threshold:
+                    self.latch.trigger(time)
+            answer = _iv_samples(state, self._constants, time)
+        if answer == answer:                   # not NOTHING (NaN): an alarm time, or a non-finite reading
+            if answer == NON_FINITE:
+                _finite(readings, self._keys)
+            else:
+                self.latch.trigger(answer)
+
+    @property
+    def J(self) -> tuple:
+        """The IV costs J1, J2 of (30)."""
+        return tuple(self._state[J_0:J_0 + 2].tolist())
+
+    @property
+    def residual(self) -> tuple:
+        """r1, r2 of (29) at the nominal c."""
+        return tuple(self._state[RESIDUAL_0:RESIDUAL_0 + 2].tolist())
+
+    @property
+    def c_hat(self) -> float:
+        """The IV estimate of c."""
+        return float(self._state[C_HAT])
+
+    @property
+    def cusum(self) -> float:
+        """The CUSUM g (s) of the IV increments toward c = cusum_ratio c_0."""
+        return float(self._state[CUSUM])
+
+    @property
+    def wind_cusum(self) -> float:
+        """The CUSUM of the wind test's log-likelihood ratio."""
+        return float(self._state[WIND_CUSUM])
 
     def outputs(self) -> dict:
-        return {"J": np.array(self.J), "residual": np.array(self.residual), "c_hat": np.array([self.c_hat]),
-                "cusum": np.array([self.cusum]), "wind_cusum": np.array([self.wind_cusum])}
+        published = self._state[OUTPUTS].copy()                 # one copy, five views of it
+        return {"J": published[0:2], "residual": published[2:4], "c_hat": published[4:5],
+                "cusum": published[5:6], "wind_cusum": published[6:7]}
 
     def status(self) -> dict:
-        bias = [0.0, 0.0] if self.accel_bias is None else list(self.accel_bias.bias)
-        return {**self.latch.status(), "J": list(self.J), "c_hat": self.c_hat, "c_nominal": self.c,
+        J0, J1, _, _, c_hat, cusum, wind_cusum = self._state[OUTPUTS].tolist()
+        bias = self._state[BIAS:BIAS + 2].tolist()
+        return {**self.latch.status(), "J": [J0, J1], "c_hat": c_hat, "c_nominal": self.c,
                 "accel_bias": bias,
-                "c_ratio": self.c_hat / self.c, "cusum": self.cusum, "cusum_threshold": self.cusum_threshold,
-                "wind_cusum": self.wind_cusum, "wind_threshold": self.wind_threshold,
+                "c_ratio": c_hat / self.c, "cusum": cusum, "cusum_threshold": self.cusum_threshold,
+                "wind_cusum": wind_cusum, "wind_threshold": self.wind_threshold,
                 "wind_level": None if self.wind_test is None else self.wind_test.levels[self.wind_test.level],
                 "ratio_threshold": self.ratio_threshold, "threshold": self.threshold}
-
-    # ------------------------------------------------------------------------------------- model
-    def _grid_step(self, s: list, t_k: float) -> None:
-        """One sample of the 200 Hz grid, `s` the filtered channels (floats: pairs of scalars cost less than
-        numpy's per-call overhead)."""
-        self._k += 1
-        self._grid = self._grid[-2:] + [s]
-        if len(self._grid) < 3:
-            return
-        s2, s1, s0 = self._grid
-        T, gT = self.T, GRAVITY * self.T
-        # 004 eq. (29) rewritten linear in c: a(t) - 2 a(t-1) + a(t-2) = c phi_c(t) + r(t), with
-        # phi_c = T [g T q(t-2) - (a_x(t-1) - a_x(t-2))] on x and T [-g T p(t-2) - (a_y(t-1) - a_y(t-2))] on y.
-        y_x, y_y = s0[0] - 2.0 * s1[0] + s2[0], s0[1] - 2.0 * s1[1] + s2[1]
-        if self.yaw_coupling:
-            # (28) drops the r v term of u' (and -r u of v'). With v = -a_y / c it adds r a_y to a_x'
-            # (and -r a_x to a_y'), a known term moved to the output side: y(t) -= T [rho(t-1) - rho(t-2)].
-            y_x -= T * (s1[4] - s2[4])
-            y_y -= T * -(s1[5] - s2[5])
-        phi = (T * (gT * s2[3] - (s1[0] - s2[0])), T * (-gT * s2[2] - (s1[1] - s2[1])))
-        # Instruments: the same regressors from the reference model's signals (004 Sec. 4.2).
-        zeta = (T * (gT * s2[9] - (s1[6] - s2[6])), T * (-gT * s2[8] - (s1[7] - s2[7])))
-        if self.accel_bias is not None:    # take out the accelerometer bias the yaw coupling carries
-            dr = T * (s1[10] - s2[10])
-            if t_k >= self._gate_until:
-                self.accel_bias.update(zeta, phi, (y_x, y_y), dr, T * (s1[11] - s2[11]))
-            bias_x, bias_y = self.accel_bias.correction(dr)
-            y_x, y_y = y_x - bias_x, y_y - bias_y
-        y = (y_x, y_y)
-        # r1, r2 at the nominal c: identical to (29) with theta = [-2 + cT, 1 - cT, c g T^2].
-        self.residual = r_x, r_y = y_x - self.c * phi[0], y_y - self.c * phi[1]
-        # The paper's instrument vectors Z (30): [-a_hat(t-1), -a_hat(t-2), +-q_hat/p_hat(t-2)].
-        Z = ((-s1[6], -s2[6], s2[9]), (-s1[7], -s2[7], -s2[8]))
-        kept = 0.0 if t_k < self._gate_until else 1.0
-        self.J = self.cost.update(Z, (kept * r_x, kept * r_y))
-        kz = (kept * zeta[0], kept * zeta[1])
-        self.estimate.update(kz, y, phi)
-        est = self.estimate
-        excited = est.D > 0.0 and self.min_excitation * est.D_peak <= est.D
-        if excited:
-            self.c_hat = est.N / est.D
-        if t_k - self._t0 < self.warmup:
-            self._z2_sum += kz[0] * kz[0] + kz[1] * kz[1]
-            self._z2_n += 1
-            return
-        if self._scale is None:
-            self._scale = self._z2_sum / self._z2_n if self._z2_sum > 0.0 else math.inf
-        # CUSUM (Page 1954) on the IV increments, one-sided toward a lighter c (heavier vehicle):
-        # e = T (c_1 zeta.phi - zeta.y) / (c_0 P_z), c_1 = cusum_ratio c_0, P_z the instruments' mean
-        # power zeta.zeta over the warm-up; g = max(0, g + e); alarm when g > cusum_threshold (s).
-        e = T * (self.cusum_ratio * (kz[0] * phi[0] + kz[1] * phi[1]) - (kz[0] * y_x + kz[1] * y_y) / self.c) \
-            / self._scale
-        self.cusum = max(0.0, self.cusum + e)
-        if self.test == "iv" and self.cusum > self.cusum_threshold:
-            self.latch.trigger(t_k)
-        if self.ratio_threshold is not None and excited and self.c_hat < self.ratio_threshold * self.c:
-            if self._below_since is None:
-                self._below_since = t_k
-            if t_k - self._below_since >= self.alarm_hold - 1e-9:
-                self.latch.trigger(t_k)
-        else:
-            self._below_since = None
-        if self.threshold is not None and max(self.J) > self.threshold:
-            self.latch.trigger(t_k)
 
 
 class SixDofResidual:
@@ -758,3 +739,290 @@ def _floats(value) -> list:
     if type(value) is np.ndarray and value.ndim == 1 and value.dtype == _FLOAT64:
         return value.tolist()
     return np.asarray(value, dtype=np.float64).ravel().tolist()
+
+
+def _array(value) -> np.ndarray:
+    """A reading as a 1-D float64 array (the env's own arrays as they are)."""
+    if type(value) is np.ndarray and value.ndim == 1 and value.dtype == _FLOAT64:
+        return value
+    return np.asarray(value, dtype=np.float64).ravel()
+
+
+# ---------------------------------------------------------------------------------------- compiled
+#: The detector's state (`IvChangeDetector._state`): scalars (NaN for None), then the ring of IV-cost products
+#: (n_w x 6), the IV low-pass's state (n x 12 channels) and the wind test's (n_air x 10) at the offsets in the
+#: constants. OUTPUTS is what `outputs` publishes: J (2), the residuals (2), c_hat, the CUSUM, the wind CUSUM.
+LAST_TIME, HAS_LAST, T0, GRID_K, GATE_UNTIL, BELOW_SINCE, Z2_SUM, Z2_N, SCALE = range(9)
+OUTPUTS, J_0, RESIDUAL_0, C_HAT, CUSUM, WIND_CUSUM = slice(9, 16), 9, 11, 13, 14, 15
+COST_K, COST_S, N_SUM, D_SUM, D_PEAK = 16, 17, 23, 24, 25       # IvCost: count, S (6); IvEstimate: N, D, D_peak
+BIAS_SUMS, BIAS_B, BIAS = 26, 32, 35        # AccelBiasEstimate: a00, a01, a02, a10, a20, bb; B (3); bias (2)
+REFERENCE = 37                              # ReferenceModel: x, y, vx, vy, tx, ty, psi
+GRID, GRID_N, LAST_F = 44, 80, 81           # the last three grid samples (3 x 12), how many, the last filtered u
+WIND_NEXT, WIND_START, WIND_F = 93, 94, 95        # the wind test's next step time (NaN: none yet), start, filtered u
+CURRENT_F, HEADER = 105, 117                       # this sample's filtered channels (12)
+#: Its constants (`IvChangeDetector._constants`): scalars (flags 1.0 true; NaN for None), then the low-passes'
+#: matrices ([C; A] row-major, [D; B], the steady state) at the offsets given.
+(K_C, K_T, K_DT, K_KP, K_KD, K_ATT, K_YAW, K_MAX_RATE, K_GATE_HOLD, K_GATE, K_MAX_YAW_RATE, K_YAW_COUPLING,
+ K_HAS_BIAS, K_LAM, K_LAM_N, K_N_W, K_LAM_ESTIMATE, K_MIN_EXCITATION, K_WARMUP, K_CUSUM_RATIO, K_CUSUM_THRESHOLD,
+ K_TEST_IV, K_RATIO_THRESHOLD, K_ALARM_HOLD, K_THRESHOLD, K_WIND, K_LAMBDA_1, K_ROTOR_K, K_HOVER_SUM, K_PERIOD,
+ K_N, K_AIR_N, K_RING, K_LOWPASS, K_AIR_LOWPASS, K_CA, K_AIR_CA, K_HEADER) = range(38)
+GATES = {"measured": 0.0, "reference": 1.0, "none": 2.0}
+NOTHING, WIND_DUE, NON_FINITE = math.nan, -math.inf, math.inf   # `_sample`'s answers besides an alarm time
+_EMPTY = np.empty(0)
+
+
+@njit(cache=True)
+def _remainder(x, y):  # pragma: no cover (compiled)
+    """math.remainder(x, y) for finite x and y != 0, as CPython computes it (Modules/mathmodule.c, m_remainder)."""
+    absx, absy = abs(x), abs(y)
+    m = np.fmod(absx, absy)
+    c = absy - m
+    if m < c:
+        r = m
+    elif m > c:
+        r = -c
+    else:
+        r = m - 2.0 * np.fmod(0.5 * (absx - m), absy)
+    return math.copysign(1.0, x) * r
+
+
+@njit(cache=True)
+def _lowpass(state, constants, offset, matrices, n, u, start):  # pragma: no cover (compiled)
+    """`LowPassBank.start` (if `start`) and `step` on the state block at `offset` (n x channels) with the
+    matrices at `matrices`: the same product (BLAS) and sums."""
+    channels = u.size
+    x = state[offset:offset + n * channels].reshape(n, channels)
+    CA = constants[matrices:matrices + (n + 1) * n].reshape(n + 1, n)
+    DB = constants[matrices + (n + 1) * n:matrices + (n + 1) * (n + 1)]
+    if start:
+        steady = constants[matrices + (n + 1) * (n + 1):matrices + (n + 1) * (n + 1) + n]
+        for i in range(n):
+            for j in range(channels):
+                x[i, j] = steady[i] * u[j]
+    yx = np.dot(CA, x)
+    for i in range(n + 1):
+        for j in range(channels):
+            yx[i, j] += DB[i] * u[j]
+    x[:] = yx[1:]
+    return yx[0].copy()
+
+
+@njit(cache=True)
+def _all_finite(a):  # pragma: no cover (compiled)
+    finite = True
+    for v in a:
+        finite &= math.isfinite(v)
+    return finite
+
+
+@njit(cache=True)
+def _sample(state, constants, gyro, accel, position, velocity, yaw_reading, attitude, ground_velocity,
+            rotor_speed, time):  # pragma: no cover (compiled)
+    """`IvChangeDetector.update` up to the wind test's filter step, then `_iv_samples` (if the wind test has no step
+    due): the reference model (Sec. 4.2), the gate, the channels, the wind test's per-sample low-pass. Returns the
+    time of an alarm the IV tests raise, NOTHING, WIND_DUE (the wind test's step is due: its filtered channels in
+    the state, the IV part left to `_iv_samples`), or NON_FINITE (state untouched)."""
+    if not (_all_finite(gyro) and _all_finite(accel) and _all_finite(position) and _all_finite(velocity)
+            and _all_finite(yaw_reading) and _all_finite(attitude) and _all_finite(ground_velocity)
+            and _all_finite(rotor_speed)):
+        return NON_FINITE
+    c = constants
+    p, q, r = gyro[0], gyro[1], gyro[2]
+    a_x, a_y = accel[0], accel[1]
+    yaw = yaw_reading[0]
+    first = state[HAS_LAST] == 0.0
+    ref = state[REFERENCE:REFERENCE + 7]                       # ReferenceModel: x, y, vx, vy, tx, ty, psi
+    if first:
+        ref[0], ref[1], ref[2], ref[3], ref[4], ref[5], ref[6] = (position[0], position[1], velocity[0],
+                                                                  velocity[1], 0.0, 0.0, yaw)
+    two_pi = 2.0 * math.pi
+    yaw_rate_hat = c[K_YAW] * _remainder(yaw - ref[6], two_pi)
+    # ReferenceModel.step
+    g, dt, cc = GRAVITY, c[K_DT], c[K_C]
+    dtx = c[K_ATT] * ((c[K_KP] * (position[0] - ref[0]) + c[K_KD] * (velocity[0] - ref[2])) / g - ref[4])
+    dty = c[K_ATT] * ((c[K_KP] * (position[1] - ref[1]) + c[K_KD] * (velocity[1] - ref[3])) / g - ref[5])
+    cs, sn = math.cos(ref[6]), math.sin(ref[6])
+    i0, i1 = -cc * (cs * ref[2] + sn * ref[3]), -cc * (cs * ref[3] - sn * ref[2])
+    i2, i3 = cs * dty - sn * dtx, -(cs * dtx + sn * dty)
+    ref[0] += dt * ref[2]
+    ref[1] += dt * ref[3]
+    ref[2] += dt * (g * ref[4] - cc * ref[2])
+    ref[3] += dt * (g * ref[5] - cc * ref[3])
+    ref[4] += dt * dtx
+    ref[5] += dt * dty
+    ref[6] += dt * c[K_YAW] * _remainder(yaw - ref[6], two_pi)
+    if c[K_GATE] == 0.0:
+        gate_p, gate_q, gate_r = p, q, r
+    else:
+        gate_p, gate_q, gate_r = i2, i3, yaw_rate_hat
+    if c[K_GATE] != 2.0 and (gate_p * gate_p + gate_q * gate_q > c[K_MAX_RATE] * c[K_MAX_RATE]
+                             or abs(gate_r) > c[K_MAX_YAW_RATE]):
+        state[GATE_UNTIL] = time + c[K_GATE_HOLD]
+    u = np.array((a_x, a_y, p, q, r * a_y, r * a_x, i0, i1, i2, i3, r, yaw_rate_hat))
+    if first:
+        state[T0] = time
+    state[CURRENT_F:CURRENT_F + 12] = _lowpass(state, constants, int(c[K_LOWPASS]), int(c[K_CA]), int(c[K_N]),
+                                               u, first)
+    if c[K_WIND] == 1.0 and _wind_sample(state, constants, accel, attitude, ground_velocity, rotor_speed, time):
+        return WIND_DUE
+    return _iv_samples(state, constants, time)
+
+
+@njit(cache=True)
+def _wind_sample(state, constants, accel, attitude, velocity, rotor_speed, time):  # pragma: no cover (compiled)
+    """`WindDragTest.update` up to its filter step: the channels and their low-pass. True when the step is due
+    (the filtered channels in the state at WIND_F)."""
+    c = constants
+    qx, qy, qz, qw = attitude[0], attitude[1], attitude[2], attitude[3]
+    total = 0.0
+    for w in rotor_speed:
+        total += w                                             # Python's sum, from 0
+    lam = c[K_LAMBDA_1] + (c[K_ROTOR_K] * (total - c[K_HOVER_SUM]) if c[K_ROTOR_K] != 0.0 else 0.0)
+    r00, r01, r02 = (lam * (1.0 - 2.0 * (qy * qy + qz * qz)), lam * 2.0 * (qx * qy + qz * qw),
+                     lam * 2.0 * (qx * qz - qy * qw))
+    r10, r11, r12 = (lam * 2.0 * (qx * qy - qz * qw), lam * (1.0 - 2.0 * (qx * qx + qz * qz)),
+                     lam * 2.0 * (qy * qz + qx * qw))
+    vn, ve, vd = velocity[0], velocity[1], velocity[2]
+    u = np.array((accel[0], accel[1], r00 * vn + r01 * ve + r02 * vd, r10 * vn + r11 * ve + r12 * vd,
+                  r00, r01, r02, r10, r11, r12))
+    first = math.isnan(state[WIND_NEXT])
+    if first:
+        state[WIND_START] = state[WIND_NEXT] = time
+    state[WIND_F:WIND_F + 10] = _lowpass(state, constants, int(c[K_AIR_LOWPASS]), int(c[K_AIR_CA]),
+                                         int(c[K_AIR_N]), u, first)
+    if time < state[WIND_NEXT] - 1e-9:
+        return False
+    state[WIND_NEXT] += c[K_PERIOD]
+    return True
+
+
+@njit(cache=True)
+def _iv_samples(state, constants, time):  # pragma: no cover (compiled)
+    """The rest of `IvChangeDetector.update`: resample the filtered channels onto the model's grid t0 + k T by
+    linear interpolation and run `_grid_step` on each grid sample. Returns the first alarm time or NOTHING."""
+    f = state[CURRENT_F:CURRENT_F + 12]
+    if state[HAS_LAST] == 1.0:
+        t_last, f_last = state[LAST_TIME], state[LAST_F:LAST_F + 12].copy()
+    else:
+        t_last, f_last = time, f.copy()
+    alarm = NOTHING
+    while True:
+        t_k = state[T0] + int(state[GRID_K]) * constants[K_T]
+        if not t_k <= time + 1e-9:
+            break
+        w = (t_k - t_last) / (time - t_last) if time > t_last else 1.0
+        s = np.empty(12)
+        for i in range(12):
+            s[i] = f_last[i] + w * (f[i] - f_last[i])
+        t_alarm = _grid_step(state, constants, s, t_k)
+        if math.isnan(alarm):
+            alarm = t_alarm
+    state[LAST_TIME], state[HAS_LAST] = time, 1.0
+    state[LAST_F:LAST_F + 12] = f
+    return alarm
+
+
+@njit(cache=True)
+def _grid_step(state, constants, s0, t_k):  # pragma: no cover (compiled)
+    """`IvChangeDetector._grid_step` (004 eq. 29-30, the IV estimate, the bias estimate, the CUSUM), the same
+    operations in the same order; returns the alarm time t_k or NOTHING."""
+    c = constants
+    state[GRID_K] += 1.0
+    grid = state[GRID:GRID + 36].reshape(3, 12)
+    n = int(state[GRID_N])
+    if n < 3:
+        grid[n] = s0
+        state[GRID_N] = n + 1
+        if n + 1 < 3:
+            return NOTHING
+    else:
+        grid[0] = grid[1]
+        grid[1] = grid[2]
+        grid[2] = s0
+    s2, s1, s0 = grid[0], grid[1], grid[2]
+    T = c[K_T]
+    gT = GRAVITY * T
+    y_x, y_y = s0[0] - 2.0 * s1[0] + s2[0], s0[1] - 2.0 * s1[1] + s2[1]
+    if c[K_YAW_COUPLING] == 1.0:
+        y_x -= T * (s1[4] - s2[4])
+        y_y -= T * -(s1[5] - s2[5])
+    phi0, phi1 = T * (gT * s2[3] - (s1[0] - s2[0])), T * (-gT * s2[2] - (s1[1] - s2[1]))
+    zeta0, zeta1 = T * (gT * s2[9] - (s1[6] - s2[6])), T * (-gT * s2[8] - (s1[7] - s2[7]))
+    gate_until = state[GATE_UNTIL]
+    if c[K_HAS_BIAS] == 1.0:                  # AccelBiasEstimate.update and .correction
+        dr = T * (s1[10] - s2[10])
+        a = state[BIAS_SUMS:BIAS_SUMS + 6]
+        B = state[BIAS_B:BIAS_B + 3]
+        bias = state[BIAS:BIAS + 2]
+        if t_k >= gate_until:
+            dr_hat = T * (s1[11] - s2[11])
+            a[0] += zeta0 * phi0 + zeta1 * phi1
+            a[1] += zeta1 * dr
+            a[2] += -zeta0 * dr
+            a[3] += dr_hat * phi1
+            a[4] += -dr_hat * phi0
+            a[5] += dr_hat * dr
+            B[0], B[1], B[2] = B[0] + (zeta0 * y_x + zeta1 * y_y), B[1] + dr_hat * y_y, B[2] + -dr_hat * y_x
+            if a[0] > 0.0:
+                bb = a[5]
+                A = np.array(((a[0], a[1], a[2]), (a[3], bb, 0.0), (a[4], 0.0, bb)))
+                solution = np.linalg.solve(A, B.copy())
+                bias[0], bias[1] = solution[1], solution[2]
+        bias_x, bias_y = -bias[1] * dr, bias[0] * dr
+        y_x, y_y = y_x - bias_x, y_y - bias_y
+    cc = c[K_C]
+    r_x, r_y = y_x - cc * phi0, y_y - cc * phi1
+    state[RESIDUAL_0], state[RESIDUAL_0 + 1] = r_x, r_y
+    kept = 0.0 if t_k < gate_until else 1.0
+    # IvCost.update: Z (2 x 3) times r
+    z0, z1, z2, z3, z4, z5 = -s1[6], -s2[6], s2[9], -s1[7], -s2[7], -s2[8]
+    kr_x, kr_y = kept * r_x, kept * r_y
+    n_w = int(c[K_N_W])
+    k = int(state[COST_K])
+    ring = state[int(c[K_RING]):int(c[K_RING]) + 6 * n_w].reshape(n_w, 6)
+    slot = k % n_w
+    zr = (z0 * kr_x, z1 * kr_x, z2 * kr_x, z3 * kr_y, z4 * kr_y, z5 * kr_y)
+    S = state[COST_S:COST_S + 6]
+    lam, lam_n = c[K_LAM], c[K_LAM_N]
+    for i in range(6):
+        S[i] = lam * S[i] + zr[i] - lam_n * ring[slot, i]
+        ring[slot, i] = zr[i]
+    state[COST_K] = k + 1
+    J0 = math.sqrt(S[0] * S[0] + S[2] * S[2] + S[1] * S[1])
+    J1 = math.sqrt(S[3] * S[3] + S[5] * S[5] + S[4] * S[4])
+    state[J_0], state[J_0 + 1] = J0, J1
+    kz0, kz1 = kept * zeta0, kept * zeta1
+    # IvEstimate.update
+    lam_e = c[K_LAM_ESTIMATE]
+    state[N_SUM] = lam_e * state[N_SUM] + (kz0 * y_x + kz1 * y_y)
+    state[D_SUM] = lam_e * state[D_SUM] + (kz0 * phi0 + kz1 * phi1)
+    D = state[D_SUM]
+    if state[D_PEAK] < D:
+        state[D_PEAK] = D
+    excited = D > 0.0 and c[K_MIN_EXCITATION] * state[D_PEAK] <= D
+    if excited:
+        state[C_HAT] = state[N_SUM] / D
+    if t_k - state[T0] < c[K_WARMUP]:
+        state[Z2_SUM] += kz0 * kz0 + kz1 * kz1
+        state[Z2_N] += 1.0
+        return NOTHING
+    if math.isnan(state[SCALE]):
+        state[SCALE] = state[Z2_SUM] / state[Z2_N] if state[Z2_SUM] > 0.0 else math.inf
+    e = T * (c[K_CUSUM_RATIO] * (kz0 * phi0 + kz1 * phi1) - (kz0 * y_x + kz1 * y_y) / cc) / state[SCALE]
+    g = state[CUSUM] + e
+    state[CUSUM] = g if g > 0.0 else 0.0                      # max(0.0, g)
+    alarm = NOTHING
+    if c[K_TEST_IV] == 1.0 and state[CUSUM] > c[K_CUSUM_THRESHOLD]:
+        alarm = t_k
+    ratio = c[K_RATIO_THRESHOLD]
+    if not math.isnan(ratio) and excited and state[C_HAT] < ratio * cc:
+        if math.isnan(state[BELOW_SINCE]):
+            state[BELOW_SINCE] = t_k
+        if t_k - state[BELOW_SINCE] >= c[K_ALARM_HOLD] - 1e-9 and math.isnan(alarm):
+            alarm = t_k
+    else:
+        state[BELOW_SINCE] = math.nan
+    threshold = c[K_THRESHOLD]
+    if not math.isnan(threshold) and (J1 if J1 > J0 else J0) > threshold and math.isnan(alarm):
+        alarm = t_k
+    return alarm
