@@ -81,11 +81,18 @@ from ..models.pusher import TWO_PI, pusher_constants, thrust
 from ..models.quadplane_aero import aero_model, fuselage_loads, speed_squared, wing_flow_loads
 from ..settings import updated
 from . import kalman
-from .base import Biquad, model_with_error
+from .base import biquad_constants, biquad_step, model_with_error
 from .pitot_detection import (
+    CONFIRMATION_CONSTANTS_SIZE,
+    CONFIRMATION_STATE_SIZE,
     CUSUM_DEFAULT,
+    R_CRITERION,
+    R_NORM_SIGN,
+    R_RESIDUAL,
     RAMP_DEFAULT,
     RAMP_MIN_AIRSPEED,
+    RESIDUAL_CONSTANTS_SIZE,
+    RESIDUAL_STATE_SIZE,
     TABLE_2_DERIVATIVE,
     TABLE_2_NORM,
     ConfirmationTest,
@@ -96,9 +103,19 @@ from .pitot_detection import (
     RampTest,
     ResidualCusum,
     ThresholdTest,
+    confirmation_step,
+    criterion_level,
+    residual_step,
 )
 from .propulsion_bayes import PropulsionModel
-from .rpm_current import RPM_CURRENT_CHECK, CurrentCheck, RpmCurrentCheck, speed_from_current
+from .rpm_current import (
+    CHECK_STATE_SIZE,
+    RPM_CURRENT_CHECK,
+    CurrentCheck,
+    RpmCurrentCheck,
+    check_step,
+    speed_from_current,
+)
 
 #: 001 Table 1: process noise (accelerometer, gyro, wind) and measurement noise (GNSS velocity, model accel).
 TABLE_1_Q = {"accel": (1.2e-4, 6.2e-4, 3.0e-4), "gyro": (3.1e-9, 1.2e-9, 1.3e-9), "wind": (1.25e-4, 1.25e-4, 1.25e-5)}
@@ -451,6 +468,7 @@ class AirdataEkfDetector:
         self.takeoff, self.velocity_key = TakeoffGate(s.takeoff_height, s.takeoff_window, sample_hz), s.velocity_key
         self._keys = ("accel", "gyro", "attitude", self.velocity_key, "pusher_speed", "hover_rotor_speed", "skew")
         self._ba = butterworth_prefilter(sample_hz, s.prefilter_hz)
+        self._lowpass = biquad_constants(*self._ba)
         if s.pitot_reference not in ("airspeed", "forward"):
             raise ValueError(f"pitot_reference: {s.pitot_reference!r}; accepted: ['airspeed', 'forward']")
         self.pitot_key, self.pitot_reference = s.pitot_key, s.pitot_reference
@@ -467,9 +485,25 @@ class AirdataEkfDetector:
             sensor: {c: PitotResidualDetector(ekf_hz, spec.norm, spec.derivative, spec.sign) for c in spec.channels}
             for sensor, spec in innovation_detectors.items()}
         self.fault_covariance, self.record = float(s.fault_covariance), bool(s.record)
+        # the innovation tests' states and constants, one row per channel (each detector's state is its row), and
+        # each row's channel and sensor (`innovation_bank`)
+        rows = [(k, c, d) for k, channels in enumerate(self.innovation_detectors.values()) for c, d in channels.items()]
+        self._innovation_states = np.zeros((len(rows), RESIDUAL_STATE_SIZE))
+        self._innovation_constants = np.zeros((len(rows), RESIDUAL_CONSTANTS_SIZE + 2))
+        for i, (k, c, d) in enumerate(rows):
+            self._innovation_constants[i] = (*d._constants, c, k)
+            d._state = self._innovation_states[i]
+        self._hits = np.zeros(len(self.innovation_detectors), dtype=np.int64)
         self.rollback = {sensor: float(spec.rollback) for sensor, spec in innovation_detectors.items()}
         self.confirmations = {sensor: PitotConfirmation(*spec.pitot_confirmation, ekf_hz)
                               for sensor, spec in innovation_detectors.items() if spec.pitot_confirmation is not None}
+        # one row per sensor, its last constant 1.0 where the sensor has a confirmation (its state is the row)
+        self._confirmation_states = np.zeros((len(innovation_detectors), CONFIRMATION_STATE_SIZE))
+        self._confirmation_constants = np.zeros((len(innovation_detectors), CONFIRMATION_CONSTANTS_SIZE + 1))
+        for k, sensor in enumerate(innovation_detectors):
+            if sensor in self.confirmations:
+                self._confirmation_constants[k] = (*self.confirmations[sensor]._constants, 1.0)
+                self.confirmations[sensor]._state = self._confirmation_states[k]
         self.current_checks = {sensor: RpmCurrentCheck(params, sample_hz, *spec.current_check,
                                                        coefficient_error=s.coefficient_error, error_seed=s.error_seed)
                                for sensor, spec in innovation_detectors.items() if spec.current_check is not None}
@@ -479,6 +513,15 @@ class AirdataEkfDetector:
         self._propulsion = (PropulsionModel(params, s.coefficient_error, s.error_seed)
                             if self._current_variance is not None else None)
         self._history_length = max([round(t * ekf_hz) for t in self.rollback.values()], default=0) + 1
+        # the compiled sample step's state (`_prepare`): the last quaternion, whether there is one, whether the
+        # prefilter has started, its memory (2 x the channels it filters: the 19 readings, + the pusher current
+        # where the EKF uses it); and the current checks' states, one row each (each check's state is its row)
+        self._run = np.zeros(PREFILTER_MEMORY + 2 * (20 if self._propulsion is not None else 19))
+        checks = list(self.current_checks.values())
+        self._check_states = np.zeros((len(checks), CHECK_STATE_SIZE))
+        self._check_constants = np.zeros((len(checks), checks[0]._constants.size if checks else 0))
+        for i, check in enumerate(checks):
+            self._check_constants[i], check._state = check._constants, self._check_states[i]
         self.reset()
 
     def reset(self) -> None:
@@ -486,9 +529,8 @@ class AirdataEkfDetector:
         self.P = np.diag(np.concatenate([np.ones(3), np.diag(self.Q)[6:]]))
         self.innovation = np.zeros(6)
         self.started, self.start_time, self._next_time = False, None, None
-        self._last_q = None
+        self._run[:] = 0.0
         self.takeoff.reset()
-        self._filter = Biquad(*self._ba)
         self._filtered = None
         self._pitot, self._armed, self._residual = None, False, 0.0
         self.pitot_detector.reset()
@@ -508,43 +550,41 @@ class AirdataEkfDetector:
         self._history = deque(maxlen=self._history_length)
         self._speed_scale, self._speed_scale_samples = 1.0, 0
         self.trace = []
+        self._published = self._status = None               # what outputs() and status() return, when built
 
     def update(self, readings: dict, time: float, command=None) -> None:
         current = self._pusher_current(readings)
-        sample = self._sample(readings, current, time)
-        self._filtered = self._filter(sample)                  # Sec. 5: inputs and measurements alike
+        parts = [readings[key] for key in self._keys]
+        if current is not None:
+            parts.append((current,))
+        # the sample s of `_ekf_cycle` (the readings of `_keys`, then the pusher current), prefiltered (Sec. 5:
+        # inputs and measurements alike), and the current checks, every sample, so their filters run before the
+        # EKF starts (each low-passes the raw pusher speed and current itself, so it also runs alone)
+        filtered = _prepare(_flat(parts), self._run, self._lowpass, self._check_states, self._check_constants)
+        if filtered.size == 0:
+            self._reject_non_finite(readings, current, time)
+        self._filtered = filtered
         if self.pitot_key in readings:
             self._pitot = _first(readings[self.pitot_key])
-        # every sample, so their filters run before the EKF starts; they need the raw pusher speed and current
-        # (each check low-passes them itself, so it also runs alone on recorded readings)
-        for check in self.current_checks.values():
-            check.update(float(sample[13]), current)
         if not self.started:
             if not self.takeoff(float(readings["position"][2])):   # Sec. 5.3: start once airborne
                 return
             self.started, self.start_time, self._next_time = True, float(time), float(time)
+            self._status = None
         if time + 1e-9 >= self._next_time:
             self._next_time += self.dt
             self._ekf(time)
+            self._published = self._status = None
 
-    def _sample(self, readings: dict, current: float | None, time: float) -> np.ndarray:
-        """The readings of `_keys` as one array (the sample s of `_ekf_cycle`), the attitude's sign kept
-        continuous; s[19] is the pusher current where the EKF uses it, filtered like the RPM it stands in for."""
-        parts = [readings[key] for key in self._keys]
-        if self._propulsion is not None:
-            parts.append((current,))
-        sample = _flat(parts)
-        q = sample[6:10]
-        if self._last_q is not None and q.dot(self._last_q) < 0.0:   # keep the quaternion's sign continuous
-            q *= -1.0
-        self._last_q = q
-        if not math.isfinite(sum(sample.tolist())):            # one check; the key is looked for only on failure
-            keys = self._keys + (("pusher_current",) if self._propulsion is not None else ())
-            for key in keys:
-                part = np.asarray(readings[key], dtype=float).reshape(-1)
-                if not np.all(np.isfinite(part)):
-                    raise ValueError(f"airdata_ekf: reading {key!r} is not finite at t = {time}: {part.tolist()}")
-        return sample
+    def _reject_non_finite(self, readings: dict, current: float | None, time: float) -> None:
+        """Raise the ValueError that names the first reading with a NaN or infinity."""
+        keys = self._keys + (("pusher_current",) if self._propulsion is not None else ())
+        for key in keys:
+            part = np.asarray(readings[key], dtype=float).reshape(-1)
+            if not np.all(np.isfinite(part)):
+                raise ValueError(f"airdata_ekf: reading {key!r} is not finite at t = {time}: {part.tolist()}")
+        speed = float(np.asarray(readings["pusher_speed"], dtype=float).reshape(-1)[0])
+        raise ValueError(f"rpm current check: pusher_speed {speed!r} and pusher_current {current!r} must be finite")
 
     def _pusher_current(self, readings: dict) -> float | None:
         """The pusher current reading, where the pusher RPM's speed_from_current or a current check needs it."""
@@ -650,22 +690,22 @@ class AirdataEkfDetector:
         """Sec. 6.2: each innovation channel through its Table 2 criteria, and a sensor's `PitotConfirmation`
         where it has one; the first alarm of a sensor's criteria latches it (its rows then get
         `fault_covariance`, see `_ekf_cycle`). True on a new alarm."""
-        new, innovation = False, self.innovation.tolist()
-        for sensor, channels in self.innovation_detectors.items():
-            hits = [d.criterion for c, d in channels.items() if d.update(innovation[c], time, self._armed)]
-            confirmation = self.confirmations.get(sensor)
-            if confirmation is not None and pitot_residual is not None:
-                level = max(d.norm.level(d.residual) for d in channels.values())   # one-sided as the norm row
-                if confirmation.update(level, pitot_residual, self._armed):
-                    hits.append("pitot_confirmation")
+        hits = self._hits                                    # per sensor: the first criterion that fired
+        residual = math.nan if pitot_residual is None else pitot_residual
+        innovation_bank(self.innovation, float(time), self._armed, residual, self._innovation_states,
+                        self._innovation_constants, self._confirmation_states, self._confirmation_constants, hits)
+        new = False
+        for sensor, hit in zip(self.innovation_detectors, hits.tolist()):
+            if not hit:
+                continue
             check = self.current_checks.get(sensor)
-            if hits and check is not None and not check.holding:
+            if check is not None and not check.holding:
                 if self.innovation_unconfirmed[sensor] is None:
                     self.innovation_unconfirmed[sensor] = float(time)
                 continue
-            if hits and self.innovation_alarms[sensor] is None:
+            if self.innovation_alarms[sensor] is None:
                 self.innovation_alarms[sensor] = self._newest_alarm = float(time)
-                self.innovation_criteria[sensor] = hits[0]
+                self.innovation_criteria[sensor] = HITS[hit]
                 new = True
         return new
 
@@ -713,12 +753,24 @@ class AirdataEkfDetector:
         return max(float(self.x[0]), 0.0)
 
     def outputs(self) -> dict:
-        # np.clip's floats (NaN kept) by min and max, cheaper on three values
-        return {"airspeed": np.array([min(self.airspeed, 200.0)]),
-                "wind": np.array([min(max(w, -100.0), 100.0) for w in self.x[3:].tolist()]),
-                "pitot_residual": np.array([min(max(self.pitot_detector.residual, -200.0), 200.0)])}
+        """The published estimates. They change only at an EKF step: built once after each, then one copy per
+        call (three views of it)."""
+        if self._published is None:
+            # np.clip's floats (NaN kept) by min and max, cheaper on three values
+            self._published = np.array([min(self.airspeed, 200.0), *[min(max(w, -100.0), 100.0)
+                                                                     for w in self.x[3:].tolist()],
+                                        min(max(self.pitot_detector.residual, -200.0), 200.0)])
+        published = self._published.copy()
+        return {"airspeed": published[0:1], "wind": published[1:4], "pitot_residual": published[4:5]}
 
     def status(self) -> dict:
+        """The status. It changes only at the start and at an EKF step: built once after each, then a new dict
+        per call (the lists and dicts in it are built anew after each change and never changed in place)."""
+        if self._status is None:
+            self._status = self._build_status()
+        return dict(self._status)
+
+    def _build_status(self) -> dict:
         d = self.pitot_detector
         pitot_alarm_time = self.pitot_alarm_time()
         alarm_time, isolated = self.first_alarm()
@@ -735,6 +787,70 @@ class AirdataEkfDetector:
                 "detection_armed": self._armed, "started": self.started,
                 "start_time": self.start_time, "airspeed": self.airspeed, "wind": self.x[3:].tolist(),
                 "air_velocity_body": self.x[:3].tolist(), "innovation": self.innovation.tolist()}
+
+
+#: `innovation_bank`'s answer per sensor: no criterion fired, or the first that did
+HITS = (None, "norm", "derivative", "pitot_confirmation")
+CHANNEL, SENSOR, CONFIRMED = RESIDUAL_CONSTANTS_SIZE, RESIDUAL_CONSTANTS_SIZE + 1, CONFIRMATION_CONSTANTS_SIZE
+
+
+@njit(cache=True)
+def innovation_bank(innovation, time, armed, pitot_residual, states, constants, confirmation_states,
+                    confirmation_constants, hits):  # pragma: no cover (compiled)
+    """Sec. 6.2: every innovation channel's Table 2 criteria (`residual_step`, one row of `states` each, in the
+    order of the sensors and their channels), then each sensor's `PitotConfirmation` (where it has one and there
+    is a pitot residual, NaN: none) on the largest norm-criterion level of its channels (one-sided as the norm
+    row; Python's max: the first of equals). `hits[k]` (index into HITS): the criterion that the first of sensor
+    k's channels whose alarm is raised fired on, else 3 if its confirmation holds, else 0."""
+    hits[:] = 0
+    for i in range(states.shape[0]):
+        sensor = int(constants[i, SENSOR])
+        if residual_step(states[i], constants[i], innovation[int(constants[i, CHANNEL])], time, armed) \
+                and hits[sensor] == 0:
+            hits[sensor] = int(states[i, R_CRITERION])
+    if pitot_residual != pitot_residual:
+        return
+    for k in range(hits.size):
+        if confirmation_constants[k, CONFIRMED] == 0.0:
+            continue
+        first, level = True, 0.0
+        for i in range(states.shape[0]):
+            if int(constants[i, SENSOR]) == k:
+                value = criterion_level(states[i, R_RESIDUAL], constants[i, R_NORM_SIGN])
+                if first or value > level:
+                    first, level = False, value
+        if confirmation_step(confirmation_states[k], confirmation_constants[k], level, pitot_residual, armed) \
+                and hits[k] == 0:
+            hits[k] = 3
+
+
+#: `AirdataEkfDetector._run`: the last quaternion, whether there is one, whether the prefilter has started, then
+#: the prefilter's memory
+LAST_Q, HAS_LAST_Q, PREFILTER_STARTED, PREFILTER_MEMORY = slice(0, 4), 4, 5, 6
+
+
+@njit(cache=True)
+def _prepare(sample, run, lowpass, checks, check_constants):  # pragma: no cover (compiled)
+    """One sample, in place on `run` and the current checks' states: the quaternion's sign kept continuous
+    (flipped where its dot product with the last is negative), the prefilter (Sec. 5, `biquad_step`) on the
+    first channels (the pusher current only where the EKF uses it), then each current check (`check_step`) on
+    the raw pusher speed s[13] and current s[19]. Returns the filtered sample (a new array), or an empty one, the
+    state untouched, if a reading is not finite."""
+    for value in sample:
+        if not math.isfinite(value):
+            return sample[:0]
+    q = sample[6:10]
+    if run[HAS_LAST_Q] == 1.0 and np.dot(q, run[LAST_Q]) < 0.0:
+        for i in range(4):
+            q[i] *= -1.0
+    run[LAST_Q], run[HAS_LAST_Q] = q, 1.0
+    channels = (run.size - PREFILTER_MEMORY) // 2
+    memory = run[PREFILTER_MEMORY:].reshape(2, channels)
+    filtered = biquad_step(lowpass, memory, sample[:channels], run[PREFILTER_STARTED] == 0.0)
+    run[PREFILTER_STARTED] = 1.0
+    for i in range(checks.shape[0]):
+        check_step(checks[i], check_constants[i], sample[13], sample[19])
+    return filtered
 
 
 def _first(reading) -> float:
