@@ -78,6 +78,7 @@ from scipy import signal
 from ..models.constants import GRAVITY
 from ..models.geometry import rotation_matrix
 from ..models.pusher import TWO_PI, pusher_constants, thrust
+from ..models.pyfloat import py_pow
 from ..models.quadplane_aero import aero_model, fuselage_loads, speed_squared, wing_flow_loads
 from ..settings import updated
 from . import kalman
@@ -114,7 +115,6 @@ from .rpm_current import (
     CurrentCheck,
     RpmCurrentCheck,
     check_step,
-    speed_from_current,
 )
 
 #: 001 Table 1: process noise (accelerometer, gyro, wind) and measurement noise (GNSS velocity, model accel).
@@ -363,6 +363,98 @@ def ekf_cycle(s, x, P, dt, Rot, Q, R, aero, pusher, model, omega_p):  # pragma: 
     return x_new, P_new, y
 
 
+#: `AirdataEkfDetector._ekf_state`: x, P (row-major), the innovation, the pusher speed's scale and its sample count
+#: (`_pusher_speed`; the roll-back restores these first EKF_HISTORY values), then 1.0 for each row of z whose
+#: sensor is isolated and whether the pusher RPM is
+STATE, COVARIANCE, INNOVATION, SPEED_SCALE, SPEED_SCALE_SAMPLES, EKF_HISTORY = (
+    slice(0, 6), slice(6, 42), slice(42, 48), 48, 49, 50)
+FAULTED, RPM_ISOLATED, EKF_STATE_SIZE = slice(50, 56), 56, 57
+#: `AirdataEkfDetector._ekf_constants`: dt, the wind boost's duration, the fault covariance, a_x's variance on the
+#: current's speed (NaN: none), 1.0 with the propulsion model, `speed_from_current`'s constants (a, rho D^4 C_Q1,
+#: rho D^3 C_Q2, c_v*, k_e, I_0*), the force model's constants, the pusher's, Q, the boosted Q (9 x 9), R
+#: (6 x 6; each row-major) and the aerodynamic constants.
+(EKF_DT, BOOST_SECONDS, FAULT_VARIANCE, CURRENT_VARIANCE, PROPULSION, SPEED_A, SPEED_B, SPEED_C, SPEED_C_V,
+ SPEED_K_E, SPEED_I_0) = range(11)
+MODEL, PUSHER, Q_MATRIX, Q_BOOSTED, R_MATRIX, AERO = (
+    slice(11, 14), slice(14, 32), slice(32, 113), slice(113, 194), slice(194, 230), slice(230, None))
+
+
+@njit(cache=True)
+def _az_covariance_gain(skew):  # pragma: no cover (compiled)
+    """`az_covariance_gain` (eq. 39, corrected), with Python's float power (`py_pow`)."""
+    deg = math.degrees(skew)
+    if deg <= 60.0:
+        return 100.0
+    if deg >= 70.0:
+        return 1.0
+    return py_pow(10.0, 2.0 * (70.0 - deg) / 10.0)
+
+
+@njit(cache=True)
+def _speed_from_current(constants, current, airspeed):  # pragma: no cover (compiled)
+    """`rpm_current.speed_from_current` (003 eq. 1-4 in steady state) on its constant factors: the positive root
+    of a w^2 + b w + c = 0, 0 when the current cannot turn the propeller."""
+    V = 0.0 if airspeed < 0.0 else airspeed                       # max(airspeed, 0.0), as Python's
+    a = constants[SPEED_A]
+    b = constants[SPEED_C_V] + constants[SPEED_B] * V / TWO_PI
+    c = constants[SPEED_C] * V * V - constants[SPEED_K_E] * (current - constants[SPEED_I_0])
+    discriminant = b * b - 4.0 * a * c
+    if a <= 0.0 or discriminant < 0.0:
+        return 0.0
+    speed = (-b + math.sqrt(discriminant)) / (2.0 * a)
+    return 0.0 if speed < 0.0 else speed
+
+
+@njit(cache=True)
+def _pusher_speed(state, constants, reading, current, skew):  # pragma: no cover (compiled)
+    """The pusher speed the EKF uses and, once the RPM sensor is isolated, a_x's variance (NaN: unchanged; see
+    INNOVATION_DETECTORS["pusher_rpm"]["speed_from_current"]). While the sensor is trusted, the ratio of the
+    read speed to the one the model gives from the current is averaged (over SPEED_SCALE_SECONDS once
+    there are that many samples) in forward flight with the pusher driven; after, it scales the model's
+    speed. It takes out the propulsion model's own error (`coefficient_error` on k_e and C_Q), which
+    alone biased the speed by up to 8%. Not in the transition: spinning up against the ESC's current
+    limit the ratio is ~0.86, in cruise ~1.0. The ratio is part of the state the
+    roll-back restores, so the faulty samples before the alarm do not enter it."""
+    isolated = state[RPM_ISOLATED] == 1.0
+    if not isolated and (skew < SPEED_SCALE_MIN_SKEW or reading <= SPEED_SCALE_MIN_SPEED):
+        return reading, math.nan
+    estimate = _speed_from_current(constants, current, state[0])
+    if isolated:
+        return state[SPEED_SCALE] * estimate, constants[CURRENT_VARIANCE]
+    if estimate > SPEED_SCALE_MIN_SPEED:
+        state[SPEED_SCALE_SAMPLES] += 1.0                         # the mean of the ratios so far, then a moving one
+        mean, moving = 1.0 / state[SPEED_SCALE_SAMPLES], constants[EKF_DT] / SPEED_SCALE_SECONDS
+        weight = moving if moving > mean else mean                # max(mean, moving), as Python's
+        state[SPEED_SCALE] += (reading / estimate - state[SPEED_SCALE]) * weight
+    return reading, math.nan
+
+
+@njit(cache=True)
+def _ekf_step(s, state, constants, elapsed):  # pragma: no cover (compiled)
+    """One EKF step (`ekf_cycle`) on the filtered sample `s`, in place on `state`, `elapsed` s after the start:
+    the attitude from the normalised quaternion; Q boosted for the wind during the first seconds (Sec. 5.4); R
+    with a_z's variance times K_az (eq. 39, corrected), each isolated sensor's rows at the fault covariance
+    (Sec. 6.2), and with the propulsion model the pusher speed of `_pusher_speed` (a_x's variance where it
+    gives one)."""
+    q = s[6:10]
+    q = q / math.sqrt(np.dot(q, q))                               # q / np.linalg.norm(q)
+    Rot = rotation_matrix((q[0], q[1], q[2], q[3]))
+    omega_p, skew = s[13], s[18]
+    Q = (constants[Q_BOOSTED] if elapsed < constants[BOOST_SECONDS] else constants[Q_MATRIX]).reshape(9, 9).copy()
+    R = constants[R_MATRIX].reshape(6, 6).copy()
+    R[5, 5] *= _az_covariance_gain(skew)                          # eq. (39), corrected
+    for c in range(6):
+        if state[FAULTED.start + c] == 1.0:                       # Sec. 6.2: a faulty measurement no longer updates
+            R[c, c] = constants[FAULT_VARIANCE]
+    if constants[PROPULSION] == 1.0:
+        omega_p, variance = _pusher_speed(state, constants, omega_p, s[19], skew)
+        if variance == variance:
+            R[3, 3] = variance                                    # a_x back in use, on the current's speed
+    x, P, innovation = ekf_cycle(s, state[STATE].copy(), state[COVARIANCE].reshape(6, 6).copy(), constants[EKF_DT],
+                                 Rot, Q, R, constants[AERO], constants[PUSHER], constants[MODEL], omega_p)
+    state[STATE], state[COVARIANCE], state[INNOVATION] = x, P.ravel(), innovation
+
+
 class TakeoffGate:
     """001 Sec. 5.3 starts the EKF once airborne. `gate(z)` (position down, m, one reading per call) is True
     once the height averaged over the last `window` s of readings stands `height` m above its average over
@@ -513,6 +605,22 @@ class AirdataEkfDetector:
         self._propulsion = (PropulsionModel(params, s.coefficient_error, s.error_seed)
                             if self._current_variance is not None else None)
         self._history_length = max([round(t * ekf_hz) for t in self.rollback.values()], default=0) + 1
+        # the compiled EKF step's state (`_ekf_step`: x, P, the innovation, the pusher speed's scale and its sample
+        # count, then the rows faulted and whether the pusher RPM is isolated) and constants
+        self._ekf_state = np.zeros(EKF_STATE_SIZE)
+        if self._propulsion is None:
+            speed = (0.0,) * 6
+        else:
+            m = self._propulsion
+            _, c_v, i_0 = m.x_star.tolist()
+            rho, d, (cq0, cq1, cq2) = m.rho, m.D, m.cq
+            # speed_from_current's constant factors, each the product it stands for there, bit for bit
+            speed = (rho * d ** 5 * cq0 / (TWO_PI * TWO_PI), rho * d ** 4 * cq1, rho * d ** 3 * cq2, c_v, m.k_e, i_0)
+        self._ekf_constants = np.concatenate((
+            (self.dt, self.wind_boost_seconds, self.fault_covariance,
+             math.nan if self._current_variance is None else self._current_variance,
+             float(self._propulsion is not None)), speed, self.model.constants, self.model.pusher, self.Q.ravel(),
+            self._Q_boosted.ravel(), self.R.ravel(), self.model.aero))
         # the compiled sample step's state (`_prepare`): the last quaternion, whether there is one, whether the
         # prefilter has started, its memory (2 x the channels it filters: the 19 readings, + the pusher current
         # where the EKF uses it); and the current checks' states, one row each (each check's state is its row)
@@ -525,9 +633,9 @@ class AirdataEkfDetector:
         self.reset()
 
     def reset(self) -> None:
-        self.x = np.zeros(6)                                   # Sec. 5.3: body velocity and wind start at 0
-        self.P = np.diag(np.concatenate([np.ones(3), np.diag(self.Q)[6:]]))
-        self.innovation = np.zeros(6)
+        self._ekf_state[:] = 0.0                               # Sec. 5.3: body velocity and wind start at 0
+        self._ekf_state[COVARIANCE] = np.diag(np.concatenate([np.ones(3), np.diag(self.Q)[6:]])).ravel()
+        self._ekf_state[SPEED_SCALE] = 1.0
         self.started, self.start_time, self._next_time = False, None, None
         self._run[:] = 0.0
         self.takeoff.reset()
@@ -548,7 +656,6 @@ class AirdataEkfDetector:
         self.innovation_unconfirmed = {sensor: None for sensor in self.current_checks}
         self._newest_alarm = None
         self._history = deque(maxlen=self._history_length)
-        self._speed_scale, self._speed_scale_samples = 1.0, 0
         self.trace = []
         self._published = self._status = None               # what outputs() and status() return, when built
 
@@ -598,8 +705,8 @@ class AirdataEkfDetector:
         return _first(readings["pusher_current"])
 
     def _ekf(self, time: float) -> None:
-        # no copies: the sample, x and P are replaced each step, never changed in place
-        self._history.append((time, self._filtered, self.x, self.P, (self._speed_scale, self._speed_scale_samples)))
+        # the sample is replaced each step, never changed in place; the state is copied
+        self._history.append((time, self._filtered, self._ekf_state[:EKF_HISTORY].copy()))
         self._ekf_cycle(self._filtered, time)
         self._armed = time - self.start_time >= self.detection_delay - 1e-9
         residual = self._pitot_residual(time)
@@ -635,9 +742,8 @@ class AirdataEkfDetector:
         if steps == 0:
             return
         replay = list(self._history)[-min(steps, len(self._history)):]
-        self.x, self.P = replay[0][2].copy(), replay[0][3].copy()
-        self._speed_scale, self._speed_scale_samples = replay[0][4]
-        for time, sample, *_ in replay:
+        self._ekf_state[:EKF_HISTORY] = replay[0][2]
+        for time, sample, _ in replay:
             self._ekf_cycle(sample, time)
 
     def _rollback_seconds(self) -> float:
@@ -645,46 +751,24 @@ class AirdataEkfDetector:
                     if t is not None and t == self._newest_alarm], default=0.0)
 
     def _ekf_cycle(self, s: np.ndarray, time: float) -> None:
-        """One EKF step on the filtered sample `s`, with the covariances of the sensors' current state."""
-        q = s[6:10]
-        Rot = rotation_matrix((q / math.sqrt(q.dot(q))).tolist())    # q / np.linalg.norm(q)
-        omega_p, skew = float(s[13]), float(s[18])
-        model = self.model
-        # Sec. 5.4: faster wind convergence
-        Q = self._Q_boosted if time - self.start_time < self.wind_boost_seconds else self.Q
-        R = self.R.copy()
-        R[5, 5] *= az_covariance_gain(skew)                  # eq. (39), corrected
-        for sensor, alarm_time in self.innovation_alarms.items():
-            if alarm_time is not None:                       # Sec. 6.2: a faulty measurement no longer updates
-                for c in self.innovation_detectors[sensor]:
-                    R[c, c] = self.fault_covariance
-        if self._propulsion is not None:
-            omega_p, variance = self._pusher_speed(omega_p, float(s[19]), skew)
-            if variance is not None:
-                R[3, 3] = variance                           # a_x back in use, on the current's speed
-        self.x, self.P, self.innovation = ekf_cycle(s, self.x, self.P, self.dt, Rot, Q, R, model.aero, model.pusher,
-                                                    model.constants, omega_p)
+        """One EKF step on the filtered sample `s`, with the covariances of the sensors' current state
+        (`_ekf_step`)."""
+        _ekf_step(s, self._ekf_state, self._ekf_constants, time - self.start_time)
 
-    def _pusher_speed(self, reading: float, current: float, skew: float) -> tuple[float, float | None]:
-        """The pusher speed the EKF uses and, once the RPM sensor is isolated, a_x's variance (see
-        INNOVATION_DETECTORS["pusher_rpm"]["speed_from_current"]). While the sensor is trusted, the ratio of the
-        read speed to the one the model gives from the current is averaged (over SPEED_SCALE_SECONDS once
-        there are that many samples) in forward flight with the pusher driven; after, it scales the model's
-        speed. It takes out the propulsion model's own error (`coefficient_error` on k_e and C_Q), which
-        alone biased the speed by up to 8%. Not in the transition: spinning up against the ESC's current
-        limit the ratio is ~0.86, in cruise ~1.0. The ratio is part of the state the
-        roll-back restores, so the faulty samples before the alarm do not enter it."""
-        isolated = self.innovation_alarms.get("pusher_rpm") is not None
-        if not isolated and (skew < SPEED_SCALE_MIN_SKEW or reading <= SPEED_SCALE_MIN_SPEED):
-            return reading, None
-        estimate = speed_from_current(self._propulsion, current, float(self.x[0]))
-        if isolated:
-            return self._speed_scale * estimate, self._current_variance
-        if estimate > SPEED_SCALE_MIN_SPEED:
-            self._speed_scale_samples += 1                   # the mean of the ratios so far, then a moving one
-            weight = max(1.0 / self._speed_scale_samples, self.dt / SPEED_SCALE_SECONDS)
-            self._speed_scale += (reading / estimate - self._speed_scale) * weight
-        return reading, None
+    @property
+    def x(self) -> np.ndarray:
+        """The EKF state [u v w mu_x mu_y mu_z] (a view of the detector's state)."""
+        return self._ekf_state[STATE]
+
+    @property
+    def P(self) -> np.ndarray:
+        """Its covariance (a view)."""
+        return self._ekf_state[COVARIANCE].reshape(6, 6)
+
+    @property
+    def innovation(self) -> np.ndarray:
+        """The last EKF step's measurement innovation z - h(x-) (a view)."""
+        return self._ekf_state[INNOVATION]
 
     def _detect_innovation_faults(self, time: float, pitot_residual: float | None) -> bool:
         """Sec. 6.2: each innovation channel through its Table 2 criteria, and a sensor's `PitotConfirmation`
@@ -706,6 +790,10 @@ class AirdataEkfDetector:
             if self.innovation_alarms[sensor] is None:
                 self.innovation_alarms[sensor] = self._newest_alarm = float(time)
                 self.innovation_criteria[sensor] = HITS[hit]
+                for c in self.innovation_detectors[sensor]:    # Sec. 6.2: its rows no longer update (`_ekf_step`)
+                    self._ekf_state[FAULTED.start + c] = 1.0
+                if sensor == "pusher_rpm":
+                    self._ekf_state[RPM_ISOLATED] = 1.0
                 new = True
         return new
 
