@@ -106,6 +106,8 @@ from .pitot_detection import (
     ThresholdTest,
     confirmation_step,
     criterion_level,
+    cusum_step,
+    ramp_step,
     residual_step,
 )
 from .propulsion_bayes import PropulsionModel
@@ -707,7 +709,7 @@ class AirdataEkfDetector:
     def _ekf(self, time: float) -> None:
         # the sample is replaced each step, never changed in place; the state is copied
         self._history.append((time, self._filtered, self._ekf_state[:EKF_HISTORY].copy()))
-        self._ekf_cycle(self._filtered, time)
+        _ekf_step(self._filtered, self._ekf_state, self._ekf_constants, time - self.start_time)   # `_ekf_cycle`
         self._armed = time - self.start_time >= self.detection_delay - 1e-9
         residual = self._pitot_residual(time)
         if self._detect_innovation_faults(time, residual):
@@ -715,12 +717,14 @@ class AirdataEkfDetector:
             residual = self._pitot_residual(time)            # of the re-run state
         # Sec. 6.2: a sensor fault must not be blamed on the pitot; and once one is found, 001 Sec. 7.3.2 notes
         # the residual no longer fits the fault-free thresholds: the pitot tests stop (disarmed) from then on
-        pitot_armed = self._armed and not any(t is not None for t in self.innovation_alarms.values())
-        if residual is not None:
-            self._residual = residual
-            self.pitot_detector.update(self._residual, time, pitot_armed)
-            self.cusum.update(self._residual, time, pitot_armed)
-            self.ramp.update(self._residual, time, pitot_armed and self.forward_airspeed >= self.ramp_min_airspeed)
+        pitot_armed = self._armed and self._newest_alarm is None          # no innovation alarm yet
+        if residual is not None:                             # each test's `update`, compiled, called directly
+            self._residual, time = residual, float(time)
+            table2, cusum, ramp = self.pitot_detector, self.cusum, self.ramp
+            residual_step(table2._state, table2._constants, residual, time, pitot_armed)
+            cusum_step(cusum._state, cusum._constants, residual, time, pitot_armed)
+            ramp_step(ramp._state, ramp._constants, residual, time,
+                      pitot_armed and self.forward_airspeed >= self.ramp_min_airspeed)
         if self.record and self._armed:
             self.trace.append(self._trace_row(time))
 
