@@ -86,7 +86,9 @@ from .base import biquad_constants, biquad_step, model_with_error
 from .pitot_detection import (
     CONFIRMATION_CONSTANTS_SIZE,
     CONFIRMATION_STATE_SIZE,
+    CUSUM_CONSTANTS_SIZE,
     CUSUM_DEFAULT,
+    CUSUM_STATE_SIZE,
     R_CRITERION,
     R_NORM_SIGN,
     R_RESIDUAL,
@@ -588,6 +590,17 @@ class AirdataEkfDetector:
             self._innovation_constants[i] = (*d._constants, c, k)
             d._state = self._innovation_states[i]
         self._hits = np.zeros(len(self.innovation_detectors), dtype=np.int64)
+        # the pitot tests' states and constants in one array each (each test's state is its part)
+        tests = (self.pitot_detector, self.cusum, self.ramp)
+        self._pitot_states = np.concatenate([test._state for test in tests])
+        self._pitot_constants = np.concatenate([test._constants for test in tests])
+        at = 0
+        for test in tests:
+            test._state, at = self._pitot_states[at:at + test._state.size], at + test._state.size
+        # `_ekf_detect`'s own state (armed, the raw residual, an innovation alarm latched) and constants
+        self._detect = np.zeros(DETECT_SIZE)
+        self._detect[DETECTION_DELAY:] = (self.detection_delay, float(self.pitot_reference == "airspeed"),
+                                          self.ramp_min_airspeed)
         self.rollback = {sensor: float(spec.rollback) for sensor, spec in innovation_detectors.items()}
         self.confirmations = {sensor: PitotConfirmation(*spec.pitot_confirmation, ekf_hz)
                               for sensor, spec in innovation_detectors.items() if spec.pitot_confirmation is not None}
@@ -626,7 +639,8 @@ class AirdataEkfDetector:
         # the compiled sample step's state (`_prepare`): the last quaternion, whether there is one, whether the
         # prefilter has started, its memory (2 x the channels it filters: the 19 readings, + the pusher current
         # where the EKF uses it); and the current checks' states, one row each (each check's state is its row)
-        self._run = np.zeros(PREFILTER_MEMORY + 2 * (20 if self._propulsion is not None else 19))
+        self._channels = 20 if self._propulsion is not None else 19
+        self._run = np.zeros(PREFILTERED + 3 * self._channels)
         checks = list(self.current_checks.values())
         self._check_states = np.zeros((len(checks), CHECK_STATE_SIZE))
         self._check_constants = np.zeros((len(checks), checks[0]._constants.size if checks else 0))
@@ -641,8 +655,8 @@ class AirdataEkfDetector:
         self.started, self.start_time, self._next_time = False, None, None
         self._run[:] = 0.0
         self.takeoff.reset()
-        self._filtered = None
-        self._pitot, self._armed, self._residual = None, False, 0.0
+        self._pitot = None
+        self._detect[:DETECTION_DELAY] = 0.0
         self.pitot_detector.reset()
         self.cusum.reset()
         self.ramp.reset()
@@ -669,10 +683,8 @@ class AirdataEkfDetector:
         # the sample s of `_ekf_cycle` (the readings of `_keys`, then the pusher current), prefiltered (Sec. 5:
         # inputs and measurements alike), and the current checks, every sample, so their filters run before the
         # EKF starts (each low-passes the raw pusher speed and current itself, so it also runs alone)
-        filtered = _prepare(_flat(parts), self._run, self._lowpass, self._check_states, self._check_constants)
-        if filtered.size == 0:
+        if not _prepare(_flat(parts), self._run, self._lowpass, self._check_states, self._check_constants):
             self._reject_non_finite(readings, current, time)
-        self._filtered = filtered
         if self.pitot_key in readings:
             self._pitot = _first(readings[self.pitot_key])
         if not self.started:
@@ -707,26 +719,39 @@ class AirdataEkfDetector:
         return _first(readings["pusher_current"])
 
     def _ekf(self, time: float) -> None:
-        # the sample is replaced each step, never changed in place; the state is copied
-        self._history.append((time, self._filtered, self._ekf_state[:EKF_HISTORY].copy()))
-        _ekf_step(self._filtered, self._ekf_state, self._ekf_constants, time - self.start_time)   # `_ekf_cycle`
-        self._armed = time - self.start_time >= self.detection_delay - 1e-9
-        residual = self._pitot_residual(time)
-        if self._detect_innovation_faults(time, residual):
-            self._roll_back()
+        """One EKF step and the tests on it, compiled (`_ekf_detect`); on an innovation criterion that fired, the
+        sensor's alarm (`_detect_innovation_faults`), the roll-back on a new one, then the pitot tests."""
+        state, pitot, time = self._ekf_state[:EKF_HISTORY].copy(), self._pitot, float(time)
+        code = _ekf_detect(self._filtered, self._ekf_state, self._ekf_constants, time - self.start_time, time,
+                           math.nan if pitot is None else pitot, pitot is not None, self._detect,
+                           self._innovation_states, self._innovation_constants, self._confirmation_states,
+                           self._confirmation_constants, self._hits, self._pitot_states, self._pitot_constants)
+        if code == PITOT_NOT_FINITE:
+            raise ValueError(f"airdata_ekf: reading {self.pitot_key!r} is not finite at t = {time}")
+        self._history.append((time, self._filtered.copy(), state))
+        if code == INNOVATION_HITS:
+            if self._detect_innovation_faults(time):
+                self._roll_back()
             residual = self._pitot_residual(time)            # of the re-run state
-        # Sec. 6.2: a sensor fault must not be blamed on the pitot; and once one is found, 001 Sec. 7.3.2 notes
-        # the residual no longer fits the fault-free thresholds: the pitot tests stop (disarmed) from then on
-        pitot_armed = self._armed and self._newest_alarm is None          # no innovation alarm yet
-        if residual is not None:                             # each test's `update`, compiled, called directly
-            self._residual, time = residual, float(time)
-            table2, cusum, ramp = self.pitot_detector, self.cusum, self.ramp
-            residual_step(table2._state, table2._constants, residual, time, pitot_armed)
-            cusum_step(cusum._state, cusum._constants, residual, time, pitot_armed)
-            ramp_step(ramp._state, ramp._constants, residual, time,
-                      pitot_armed and self.forward_airspeed >= self.ramp_min_airspeed)
+            if residual is not None:
+                _pitot_tests(self._ekf_state, residual, time, self._detect, self._pitot_states, self._pitot_constants)
         if self.record and self._armed:
             self.trace.append(self._trace_row(time))
+
+    @property
+    def _armed(self) -> bool:
+        """Whether the tests are armed (`detection_delay` s after the start)."""
+        return bool(self._detect[ARMED])
+
+    @property
+    def _residual(self) -> float:
+        """The last raw pitot residual."""
+        return float(self._detect[RESIDUAL])
+
+    @property
+    def _filtered(self) -> np.ndarray:
+        """The last prefiltered sample (a view of the sample step's state)."""
+        return self._run[PREFILTERED:PREFILTERED + self._channels]
 
     def _pitot_residual(self, time: float) -> float | None:
         """Sec. 6.1: r = pitot - EKF airspeed (None without a pitot reading)."""
@@ -774,16 +799,12 @@ class AirdataEkfDetector:
         """The last EKF step's measurement innovation z - h(x-) (a view)."""
         return self._ekf_state[INNOVATION]
 
-    def _detect_innovation_faults(self, time: float, pitot_residual: float | None) -> bool:
+    def _detect_innovation_faults(self, time: float) -> bool:
         """Sec. 6.2: each innovation channel through its Table 2 criteria, and a sensor's `PitotConfirmation`
-        where it has one; the first alarm of a sensor's criteria latches it (its rows then get
-        `fault_covariance`, see `_ekf_cycle`). True on a new alarm."""
-        hits = self._hits                                    # per sensor: the first criterion that fired
-        residual = math.nan if pitot_residual is None else pitot_residual
-        innovation_bank(self.innovation, float(time), self._armed, residual, self._innovation_states,
-                        self._innovation_constants, self._confirmation_states, self._confirmation_constants, hits)
+        where it has one (`innovation_bank`, run by `_ekf_detect`: `_hits`); the first alarm of a sensor's criteria
+        latches it (its rows then get `fault_covariance`, see `_ekf_cycle`). True on a new alarm."""
         new = False
-        for sensor, hit in zip(self.innovation_detectors, hits.tolist()):
+        for sensor, hit in zip(self.innovation_detectors, self._hits.tolist()):
             if not hit:
                 continue
             check = self.current_checks.get(sensor)
@@ -798,6 +819,7 @@ class AirdataEkfDetector:
                     self._ekf_state[FAULTED.start + c] = 1.0
                 if sensor == "pusher_rpm":
                     self._ekf_state[RPM_ISOLATED] = 1.0
+                self._detect[LATCHED] = 1.0                  # the pitot tests stop (`_pitot_tests`)
                 new = True
         return new
 
@@ -917,8 +939,8 @@ def innovation_bank(innovation, time, armed, pitot_residual, states, constants, 
 
 
 #: `AirdataEkfDetector._run`: the last quaternion, whether there is one, whether the prefilter has started, then
-#: the prefilter's memory
-LAST_Q, HAS_LAST_Q, PREFILTER_STARTED, PREFILTER_MEMORY = slice(0, 4), 4, 5, 6
+#: the prefiltered sample and the prefilter's memory (2 x its channels)
+LAST_Q, HAS_LAST_Q, PREFILTER_STARTED, PREFILTERED = slice(0, 4), 4, 5, 6
 
 
 @njit(cache=True)
@@ -926,23 +948,84 @@ def _prepare(sample, run, lowpass, checks, check_constants):  # pragma: no cover
     """One sample, in place on `run` and the current checks' states: the quaternion's sign kept continuous
     (flipped where its dot product with the last is negative), the prefilter (Sec. 5, `biquad_step`) on the
     first channels (the pusher current only where the EKF uses it), then each current check (`check_step`) on
-    the raw pusher speed s[13] and current s[19]. Returns the filtered sample (a new array), or an empty one, the
-    state untouched, if a reading is not finite."""
+    the raw pusher speed s[13] and current s[19]. The filtered sample goes to `run`; False, the state untouched,
+    if a reading is not finite."""
     for value in sample:
         if not math.isfinite(value):
-            return sample[:0]
+            return False
     q = sample[6:10]
     if run[HAS_LAST_Q] == 1.0 and np.dot(q, run[LAST_Q]) < 0.0:
         for i in range(4):
             q[i] *= -1.0
     run[LAST_Q], run[HAS_LAST_Q] = q, 1.0
-    channels = (run.size - PREFILTER_MEMORY) // 2
-    memory = run[PREFILTER_MEMORY:].reshape(2, channels)
-    filtered = biquad_step(lowpass, memory, sample[:channels], run[PREFILTER_STARTED] == 0.0)
+    channels = (run.size - PREFILTERED) // 3
+    memory = run[PREFILTERED + channels:].reshape(2, channels)
+    run[PREFILTERED:PREFILTERED + channels] = biquad_step(lowpass, memory, sample[:channels],
+                                                          run[PREFILTER_STARTED] == 0.0)
     run[PREFILTER_STARTED] = 1.0
     for i in range(checks.shape[0]):
         check_step(checks[i], check_constants[i], sample[13], sample[19])
-    return filtered
+    return True
+
+
+#: `AirdataEkfDetector._detect`: whether the tests are armed, the raw pitot residual, whether an innovation alarm
+#: has latched; then its constants: the detection delay, 1.0 for 001's residual (|V|) and the ramp test's least
+#: forward airspeed
+ARMED, RESIDUAL, LATCHED, DETECTION_DELAY, AIRSPEED_REFERENCE, RAMP_MIN_AIRSPEED, DETECT_SIZE = range(7)
+#: `_ekf_detect`'s answers besides 0 (done)
+PITOT_NOT_FINITE, INNOVATION_HITS = -1, 1
+
+
+@njit(cache=True)
+def _ekf_detect(s, state, constants, elapsed, time, pitot, has_pitot, detect, innovation_states,
+                innovation_constants, confirmation_states, confirmation_constants, hits, pitot_states,
+                pitot_constants):  # pragma: no cover (compiled)
+    """One EKF step on the filtered sample `s` (`_ekf_step`, `elapsed` s after the start) and the tests on it: armed
+    `detection_delay` s after the start; the pitot residual r = pitot - EKF airspeed (Sec. 6.1, `has_pitot`); the
+    innovation tests (`innovation_bank`, Sec. 6.2); then, unless one of their criteria fired (INNOVATION_HITS:
+    the caller latches the alarm and runs the pitot tests), the pitot tests (`_pitot_tests`). PITOT_NOT_FINITE,
+    the state untouched, for a pitot reading that is not finite."""
+    if has_pitot and not math.isfinite(pitot):
+        return PITOT_NOT_FINITE
+    _ekf_step(s, state, constants, elapsed)
+    armed = elapsed >= detect[DETECTION_DELAY] - 1e-9
+    detect[ARMED] = armed
+    residual = pitot - _pitot_reference(state, detect) if has_pitot else math.nan
+    innovation_bank(state[INNOVATION], time, armed, residual, innovation_states, innovation_constants,
+                    confirmation_states, confirmation_constants, hits)
+    for hit in hits:
+        if hit != 0:
+            return INNOVATION_HITS
+    if has_pitot:
+        _pitot_tests(state, residual, time, detect, pitot_states, pitot_constants)
+    return 0
+
+
+@njit(cache=True)
+def _pitot_reference(state, detect):  # pragma: no cover (compiled)
+    """What the pitot residual compares the pitot with: the EKF airspeed |V| (001), or max(u, 0)."""
+    if detect[AIRSPEED_REFERENCE] == 1.0:
+        return math.sqrt(np.dot(state[0:3], state[0:3]))            # np.linalg.norm(v)
+    return 0.0 if state[0] < 0.0 else state[0]                      # max(u, 0.0), as Python's
+
+
+@njit(cache=True)
+def _pitot_tests(state, residual, time, detect, pitot_states, pitot_constants):  # pragma: no cover (compiled)
+    """The pitot tests on the residual (Table 2 `residual_step`, `cusum_step`, `ramp_step`: their states and
+    constants one after the other), armed while no innovation alarm has latched (Sec. 6.2: a sensor fault must
+    not be blamed on the pitot; and once one is found, 001 Sec. 7.3.2 notes the residual no longer fits the
+    fault-free thresholds: the pitot tests stop from then on); the ramp test only at a forward airspeed of at
+    least `ramp_min_airspeed`."""
+    detect[RESIDUAL] = residual
+    armed = detect[ARMED] == 1.0 and detect[LATCHED] == 0.0
+    forward = 0.0 if state[0] < 0.0 else state[0]
+    cusum_at, ramp_at = RESIDUAL_STATE_SIZE + CUSUM_STATE_SIZE, RESIDUAL_CONSTANTS_SIZE + CUSUM_CONSTANTS_SIZE
+    residual_step(pitot_states[:RESIDUAL_STATE_SIZE], pitot_constants[:RESIDUAL_CONSTANTS_SIZE], residual, time,
+                  armed)
+    cusum_step(pitot_states[RESIDUAL_STATE_SIZE:cusum_at], pitot_constants[RESIDUAL_CONSTANTS_SIZE:ramp_at],
+               residual, time, armed)
+    ramp_step(pitot_states[cusum_at:], pitot_constants[ramp_at:], residual, time,
+              armed and forward >= detect[RAMP_MIN_AIRSPEED])
 
 
 def _first(reading) -> float:

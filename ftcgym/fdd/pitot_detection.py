@@ -246,7 +246,7 @@ class ResidualCusum:
 #: `ResidualCusum._state`: g, the last filtered residual and whether there is one, the alarm, its time, whether
 #: the filter has started, its memory. `_constants`: the filter (`biquad_constants`), sample_hz, nu, h.
 C_STATISTIC, C_LAST, C_HAS_LAST, C_ALARM, C_ALARM_TIME, C_STARTED, C_MEMORY, CUSUM_STATE_SIZE = (*range(7), 8)
-C_FILTER, C_SAMPLE_HZ, C_DRIFT, C_THRESHOLD = slice(0, 8), 8, 9, 10
+C_FILTER, C_SAMPLE_HZ, C_DRIFT, C_THRESHOLD, CUSUM_CONSTANTS_SIZE = slice(0, 8), 8, 9, 10, 11
 
 
 @njit(cache=True)
