@@ -84,12 +84,23 @@ from ..settings import updated
 from . import kalman
 from .base import biquad_constants, biquad_step, model_with_error
 from .pitot_detection import (
+    C_ALARM,
+    C_ALARM_TIME,
+    C_STATISTIC,
     CONFIRMATION_CONSTANTS_SIZE,
     CONFIRMATION_STATE_SIZE,
+    CRITERIA,
     CUSUM_CONSTANTS_SIZE,
     CUSUM_DEFAULT,
     CUSUM_STATE_SIZE,
+    G_ALARM,
+    G_ALARM_TIME,
+    G_RING,
+    G_STATISTIC,
+    R_ALARM,
+    R_ALARM_TIME,
     R_CRITERION,
+    R_DERIVATIVE,
     R_NORM_SIGN,
     R_RESIDUAL,
     RAMP_DEFAULT,
@@ -599,6 +610,7 @@ class AirdataEkfDetector:
             test._state, at = self._pitot_states[at:at + test._state.size], at + test._state.size
         # `_ekf_detect`'s own state (armed, the raw residual, an innovation alarm latched) and constants
         self._detect = np.zeros(DETECT_SIZE)
+        self._published = np.zeros(PUBLISHED_SIZE)           # `_publish`
         self._detect[DETECTION_DELAY:] = (self.detection_delay, float(self.pitot_reference == "airspeed"),
                                           self.ramp_min_airspeed)
         self.rollback = {sensor: float(spec.rollback) for sensor, spec in innovation_detectors.items()}
@@ -673,7 +685,8 @@ class AirdataEkfDetector:
         self._newest_alarm = None
         self._history = deque(maxlen=self._history_length)
         self.trace = []
-        self._published = self._status = None               # what outputs() and status() return, when built
+        self._published[:] = 0.0                            # the outputs at x = 0, residual 0
+        self._status = None                                  # what status() returns, when built
 
     def update(self, readings: dict, time: float, command=None) -> None:
         current = self._pusher_current(readings)
@@ -695,7 +708,7 @@ class AirdataEkfDetector:
         if time + 1e-9 >= self._next_time:
             self._next_time += self.dt
             self._ekf(time)
-            self._published = self._status = None
+            self._status = None
 
     def _reject_non_finite(self, readings: dict, current: float | None, time: float) -> None:
         """Raise the ValueError that names the first reading with a NaN or infinity."""
@@ -725,7 +738,8 @@ class AirdataEkfDetector:
         code = _ekf_detect(self._filtered, self._ekf_state, self._ekf_constants, time - self.start_time, time,
                            math.nan if pitot is None else pitot, pitot is not None, self._detect,
                            self._innovation_states, self._innovation_constants, self._confirmation_states,
-                           self._confirmation_constants, self._hits, self._pitot_states, self._pitot_constants)
+                           self._confirmation_constants, self._hits, self._pitot_states, self._pitot_constants,
+                           self._published)
         if code == PITOT_NOT_FINITE:
             raise ValueError(f"airdata_ekf: reading {self.pitot_key!r} is not finite at t = {time}")
         self._history.append((time, self._filtered.copy(), state))
@@ -735,6 +749,7 @@ class AirdataEkfDetector:
             residual = self._pitot_residual(time)            # of the re-run state
             if residual is not None:
                 _pitot_tests(self._ekf_state, residual, time, self._detect, self._pitot_states, self._pitot_constants)
+            _publish(self._ekf_state, self._pitot_states, self._published)
         if self.record and self._armed:
             self.trace.append(self._trace_row(time))
 
@@ -867,13 +882,7 @@ class AirdataEkfDetector:
         return max(float(self.x[0]), 0.0)
 
     def outputs(self) -> dict:
-        """The published estimates. They change only at an EKF step: built once after each, then one copy per
-        call (three views of it)."""
-        if self._published is None:
-            # np.clip's floats (NaN kept) by min and max, cheaper on three values
-            self._published = np.array([min(self.airspeed, 200.0), *[min(max(w, -100.0), 100.0)
-                                                                     for w in self.x[3:].tolist()],
-                                        min(max(self.pitot_detector.residual, -200.0), 200.0)])
+        """The published estimates (`_publish`, after each EKF step): one copy per call, three views of it."""
         published = self._published.copy()
         return {"airspeed": published[0:1], "wind": published[1:4], "pitot_residual": published[4:5]}
 
@@ -885,22 +894,33 @@ class AirdataEkfDetector:
         return dict(self._status)
 
     def _build_status(self) -> dict:
-        d = self.pitot_detector
-        pitot_alarm_time = self.pitot_alarm_time()
-        alarm_time, isolated = self.first_alarm()
+        """The status from one list of the pitot tests' states and one of the EKF's (as `pitot_alarm_time`,
+        `first_alarm` and the tests' properties read them)."""
+        v, cusum, ramp = self._pitot_states[:PITOT_STATUS].tolist(), RESIDUAL_STATE_SIZE, PITOT_RAMP
+        times = {"table2": v[R_ALARM_TIME] if v[R_ALARM] else None,
+                 "cusum": v[cusum + C_ALARM_TIME] if v[cusum + C_ALARM] else None,
+                 "ramp": v[ramp + G_ALARM_TIME] if v[ramp + G_ALARM] else None}
+        chosen = times.values() if self.criterion == "either" else [times[self.criterion]]
+        pitot_times = [t for t in chosen if t is not None]
+        pitot_alarm_time = min(pitot_times) if pitot_times else None
+        events = [(t, sensor) for sensor, t in self.innovation_alarms.items() if t is not None]
+        if pitot_alarm_time is not None:
+            events.append((pitot_alarm_time, "pitot"))
+        alarm_time, isolated = min(events) if events else (None, None)
+        ekf = self._ekf_state[:INNOVATION.stop].tolist()
         return {"alarm": alarm_time is not None, "alarm_time": alarm_time, "isolated": isolated,
                 "criterion": self.criterion, "pitot_alarm": pitot_alarm_time is not None,
-                "pitot_alarm_time": pitot_alarm_time, "alarm_time_table2": d.alarm_time,
-                "alarm_time_cusum": self.cusum.alarm_time, "alarm_time_ramp": self.ramp.alarm_time,
-                "table2_criterion": d.criterion, "cusum_statistic": float(self.cusum.statistic),
-                "ramp_statistic": float(self.ramp.statistic), "innovation_alarms": dict(self.innovation_alarms),
+                "pitot_alarm_time": pitot_alarm_time, "alarm_time_table2": times["table2"],
+                "alarm_time_cusum": times["cusum"], "alarm_time_ramp": times["ramp"],
+                "table2_criterion": CRITERIA[int(v[R_CRITERION])], "cusum_statistic": v[cusum + C_STATISTIC],
+                "ramp_statistic": v[ramp + G_STATISTIC], "innovation_alarms": dict(self.innovation_alarms),
                 "innovation_criteria": dict(self.innovation_criteria),
                 "innovation_unconfirmed": dict(self.innovation_unconfirmed),
-                "pitot_residual": float(d.residual),
-                "pitot_residual_derivative": float(d.derivative),
+                "pitot_residual": v[R_RESIDUAL],
+                "pitot_residual_derivative": v[R_DERIVATIVE],
                 "detection_armed": self._armed, "started": self.started,
-                "start_time": self.start_time, "airspeed": self.airspeed, "wind": self.x[3:].tolist(),
-                "air_velocity_body": self.x[:3].tolist(), "innovation": self.innovation.tolist()}
+                "start_time": self.start_time, "airspeed": float(self._published[AIRSPEED]), "wind": ekf[3:6],
+                "air_velocity_body": ekf[0:3], "innovation": ekf[INNOVATION]}
 
 
 #: `innovation_bank`'s answer per sensor: no criterion fired, or the first that did
@@ -979,12 +999,12 @@ PITOT_NOT_FINITE, INNOVATION_HITS = -1, 1
 @njit(cache=True)
 def _ekf_detect(s, state, constants, elapsed, time, pitot, has_pitot, detect, innovation_states,
                 innovation_constants, confirmation_states, confirmation_constants, hits, pitot_states,
-                pitot_constants):  # pragma: no cover (compiled)
+                pitot_constants, published):  # pragma: no cover (compiled)
     """One EKF step on the filtered sample `s` (`_ekf_step`, `elapsed` s after the start) and the tests on it: armed
     `detection_delay` s after the start; the pitot residual r = pitot - EKF airspeed (Sec. 6.1, `has_pitot`); the
     innovation tests (`innovation_bank`, Sec. 6.2); then, unless one of their criteria fired (INNOVATION_HITS:
-    the caller latches the alarm and runs the pitot tests), the pitot tests (`_pitot_tests`). PITOT_NOT_FINITE,
-    the state untouched, for a pitot reading that is not finite."""
+    the caller latches the alarm and runs the pitot tests), the pitot tests (`_pitot_tests`) and the outputs
+    (`_publish`). PITOT_NOT_FINITE, the state untouched, for a pitot reading that is not finite."""
     if has_pitot and not math.isfinite(pitot):
         return PITOT_NOT_FINITE
     _ekf_step(s, state, constants, elapsed)
@@ -998,7 +1018,29 @@ def _ekf_detect(s, state, constants, elapsed, time, pitot, has_pitot, detect, in
             return INNOVATION_HITS
     if has_pitot:
         _pitot_tests(state, residual, time, detect, pitot_states, pitot_constants)
+    _publish(state, pitot_states, published)
     return 0
+
+
+#: `AirdataEkfDetector._published`: the outputs (airspeed, wind, pitot residual, clipped to their spaces), then
+#: the airspeed itself; where the pitot tests' states start the ramp test's, and the part the status reads
+PUBLISHED_SIZE, AIRSPEED = 6, 5
+PITOT_RAMP = RESIDUAL_STATE_SIZE + CUSUM_STATE_SIZE
+PITOT_STATUS = PITOT_RAMP + G_RING
+
+
+@njit(cache=True)
+def _publish(state, pitot_states, published):  # pragma: no cover (compiled)
+    """The outputs after an EKF step: the airspeed |V| (np.linalg.norm), the wind and the filtered pitot residual,
+    clipped as np.clip (by Python's min and max, NaN kept), then |V| itself."""
+    airspeed = math.sqrt(np.dot(state[0:3], state[0:3]))
+    published[0] = 200.0 if airspeed > 200.0 else airspeed          # min(airspeed, 200.0)
+    for i in range(3):
+        w = -100.0 if state[3 + i] < -100.0 else state[3 + i]      # max(w, -100.0)
+        published[1 + i] = 100.0 if w > 100.0 else w                # min(., 100.0)
+    r = -200.0 if pitot_states[R_RESIDUAL] < -200.0 else pitot_states[R_RESIDUAL]
+    published[4] = 200.0 if r > 200.0 else r
+    published[AIRSPEED] = airspeed
 
 
 @njit(cache=True)
