@@ -46,9 +46,14 @@ TU Delft 2023 (001). Pipeline per sample:
    once the pusher RPM is isolated, a_x stays in use with the speed its current draws (003 eq. 1-4) instead of
    being dropped ("speed_from_current" in INNOVATION_DETECTORS).
 
-The prefilter and the EKF step are compiled (numba: `Biquad`'s array form; `ekf_cycle`: `ekf_predict`,
-`measurement` and `kalman.update`) with the operations and their order of the numpy code they replaced (BLAS's
-products and LAPACK's solve, as numpy's), so the estimates keep their bits.
+Each `update` is compiled (numba) in at most two calls on the detector's state packed in a few float arrays (numba's
+call cost grows with each argument): `_prepare` every sample (quaternion sign, prefilter, current checks), and at
+each EKF step `_ekf_detect` (the EKF step `_ekf_step`: `ekf_cycle` = `ekf_predict`, `measurement`,
+`kalman.update`; the innovation tests, the pitot tests and the outputs). Python only latches an innovation alarm,
+rolls back and builds the status. The sub-objects (`pitot_detector`, `cusum`, `ramp`, `innovation_detectors`,
+`confirmations`, `current_checks`) keep their attributes, read from their part of those arrays. Every step has the
+operations and their order of the numpy and plain-Python code it replaced (BLAS's products and LAPACK's solve, as
+numpy's; Python's float power by `py_pow`), so the estimates, statistics and alarms keep their bits.
 
 The force model (`ComponentForceModel`) is 001's (eq. 6-30: fuselage, hover rotors, wing, pusher; control
 surfaces and tail neglected as 001 Sec. 4 does): the simulator's own generalised forms
