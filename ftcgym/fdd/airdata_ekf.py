@@ -46,9 +46,14 @@ TU Delft 2023 (001). Pipeline per sample:
    once the pusher RPM is isolated, a_x stays in use with the speed its current draws (003 eq. 1-4) instead of
    being dropped ("speed_from_current" in INNOVATION_DETECTORS).
 
-The prefilter and the EKF step are compiled (numba: `Biquad`'s array form; `ekf_cycle`: `ekf_predict`,
-`measurement` and `kalman.update`) with the operations and their order of the numpy code they replaced (BLAS's
-products and LAPACK's solve, as numpy's), so the estimates keep their bits.
+Each `update` is compiled (numba) in at most two calls on the detector's state packed in a few float arrays (numba's
+call cost grows with each argument): `_prepare` every sample (quaternion sign, prefilter, current checks), and at
+each EKF step `_ekf_detect` (the EKF step `_ekf_step`: `ekf_cycle` = `ekf_predict`, `measurement`,
+`kalman.update`; the innovation tests, the pitot tests and the outputs). Python only latches an innovation alarm,
+rolls back and builds the status. The sub-objects (`pitot_detector`, `cusum`, `ramp`, `innovation_detectors`,
+`confirmations`, `current_checks`) keep their attributes, read from their part of those arrays. Every step has the
+operations and their order of the numpy and plain-Python code it replaced (BLAS's products and LAPACK's solve, as
+numpy's; Python's float power by `py_pow`), so the estimates, statistics and alarms keep their bits.
 
 The force model (`ComponentForceModel`) is 001's (eq. 6-30: fuselage, hover rotors, wing, pusher; control
 surfaces and tail neglected as 001 Sec. 4 does): the simulator's own generalised forms
@@ -78,14 +83,35 @@ from scipy import signal
 from ..models.constants import GRAVITY
 from ..models.geometry import rotation_matrix
 from ..models.pusher import TWO_PI, pusher_constants, thrust
+from ..models.pyfloat import py_pow
 from ..models.quadplane_aero import aero_model, fuselage_loads, speed_squared, wing_flow_loads
 from ..settings import updated
 from . import kalman
-from .base import Biquad, model_with_error
+from .base import biquad_constants, biquad_step, model_with_error
 from .pitot_detection import (
+    C_ALARM,
+    C_ALARM_TIME,
+    C_STATISTIC,
+    CONFIRMATION_CONSTANTS_SIZE,
+    CONFIRMATION_STATE_SIZE,
+    CRITERIA,
+    CUSUM_CONSTANTS_SIZE,
     CUSUM_DEFAULT,
+    CUSUM_STATE_SIZE,
+    G_ALARM,
+    G_ALARM_TIME,
+    G_RING,
+    G_STATISTIC,
+    R_ALARM,
+    R_ALARM_TIME,
+    R_CRITERION,
+    R_DERIVATIVE,
+    R_NORM_SIGN,
+    R_RESIDUAL,
     RAMP_DEFAULT,
     RAMP_MIN_AIRSPEED,
+    RESIDUAL_CONSTANTS_SIZE,
+    RESIDUAL_STATE_SIZE,
     TABLE_2_DERIVATIVE,
     TABLE_2_NORM,
     ConfirmationTest,
@@ -96,9 +122,20 @@ from .pitot_detection import (
     RampTest,
     ResidualCusum,
     ThresholdTest,
+    confirmation_step,
+    criterion_level,
+    cusum_step,
+    ramp_step,
+    residual_step,
 )
 from .propulsion_bayes import PropulsionModel
-from .rpm_current import RPM_CURRENT_CHECK, CurrentCheck, RpmCurrentCheck, speed_from_current
+from .rpm_current import (
+    CHECK_STATE_SIZE,
+    RPM_CURRENT_CHECK,
+    CurrentCheck,
+    RpmCurrentCheck,
+    check_step,
+)
 
 #: 001 Table 1: process noise (accelerometer, gyro, wind) and measurement noise (GNSS velocity, model accel).
 TABLE_1_Q = {"accel": (1.2e-4, 6.2e-4, 3.0e-4), "gyro": (3.1e-9, 1.2e-9, 1.3e-9), "wind": (1.25e-4, 1.25e-4, 1.25e-5)}
@@ -346,6 +383,98 @@ def ekf_cycle(s, x, P, dt, Rot, Q, R, aero, pusher, model, omega_p):  # pragma: 
     return x_new, P_new, y
 
 
+#: `AirdataEkfDetector._ekf_state`: x, P (row-major), the innovation, the pusher speed's scale and its sample count
+#: (`_pusher_speed`; the roll-back restores these first EKF_HISTORY values), then 1.0 for each row of z whose
+#: sensor is isolated and whether the pusher RPM is
+STATE, COVARIANCE, INNOVATION, SPEED_SCALE, SPEED_SCALE_SAMPLES, EKF_HISTORY = (
+    slice(0, 6), slice(6, 42), slice(42, 48), 48, 49, 50)
+FAULTED, RPM_ISOLATED, EKF_STATE_SIZE = slice(50, 56), 56, 57
+#: `AirdataEkfDetector._ekf_constants`: dt, the wind boost's duration, the fault covariance, a_x's variance on the
+#: current's speed (NaN: none), 1.0 with the propulsion model, `speed_from_current`'s constants (a, rho D^4 C_Q1,
+#: rho D^3 C_Q2, c_v*, k_e, I_0*), the force model's constants, the pusher's, Q, the boosted Q (9 x 9), R
+#: (6 x 6; each row-major) and the aerodynamic constants.
+(EKF_DT, BOOST_SECONDS, FAULT_VARIANCE, CURRENT_VARIANCE, PROPULSION, SPEED_A, SPEED_B, SPEED_C, SPEED_C_V,
+ SPEED_K_E, SPEED_I_0) = range(11)
+MODEL, PUSHER, Q_MATRIX, Q_BOOSTED, R_MATRIX, AERO = (
+    slice(11, 14), slice(14, 32), slice(32, 113), slice(113, 194), slice(194, 230), slice(230, None))
+
+
+@njit(cache=True)
+def _az_covariance_gain(skew):  # pragma: no cover (compiled)
+    """`az_covariance_gain` (eq. 39, corrected), with Python's float power (`py_pow`)."""
+    deg = math.degrees(skew)
+    if deg <= 60.0:
+        return 100.0
+    if deg >= 70.0:
+        return 1.0
+    return py_pow(10.0, 2.0 * (70.0 - deg) / 10.0)
+
+
+@njit(cache=True)
+def _speed_from_current(constants, current, airspeed):  # pragma: no cover (compiled)
+    """`rpm_current.speed_from_current` (003 eq. 1-4 in steady state) on its constant factors: the positive root
+    of a w^2 + b w + c = 0, 0 when the current cannot turn the propeller."""
+    V = 0.0 if airspeed < 0.0 else airspeed                       # max(airspeed, 0.0), as Python's
+    a = constants[SPEED_A]
+    b = constants[SPEED_C_V] + constants[SPEED_B] * V / TWO_PI
+    c = constants[SPEED_C] * V * V - constants[SPEED_K_E] * (current - constants[SPEED_I_0])
+    discriminant = b * b - 4.0 * a * c
+    if a <= 0.0 or discriminant < 0.0:
+        return 0.0
+    speed = (-b + math.sqrt(discriminant)) / (2.0 * a)
+    return 0.0 if speed < 0.0 else speed
+
+
+@njit(cache=True)
+def _pusher_speed(state, constants, reading, current, skew):  # pragma: no cover (compiled)
+    """The pusher speed the EKF uses and, once the RPM sensor is isolated, a_x's variance (NaN: unchanged; see
+    INNOVATION_DETECTORS["pusher_rpm"]["speed_from_current"]). While the sensor is trusted, the ratio of the
+    read speed to the one the model gives from the current is averaged (over SPEED_SCALE_SECONDS once
+    there are that many samples) in forward flight with the pusher driven; after, it scales the model's
+    speed. It takes out the propulsion model's own error (`coefficient_error` on k_e and C_Q), which
+    alone biased the speed by up to 8%. Not in the transition: spinning up against the ESC's current
+    limit the ratio is ~0.86, in cruise ~1.0. The ratio is part of the state the
+    roll-back restores, so the faulty samples before the alarm do not enter it."""
+    isolated = state[RPM_ISOLATED] == 1.0
+    if not isolated and (skew < SPEED_SCALE_MIN_SKEW or reading <= SPEED_SCALE_MIN_SPEED):
+        return reading, math.nan
+    estimate = _speed_from_current(constants, current, state[0])
+    if isolated:
+        return state[SPEED_SCALE] * estimate, constants[CURRENT_VARIANCE]
+    if estimate > SPEED_SCALE_MIN_SPEED:
+        state[SPEED_SCALE_SAMPLES] += 1.0                         # the mean of the ratios so far, then a moving one
+        mean, moving = 1.0 / state[SPEED_SCALE_SAMPLES], constants[EKF_DT] / SPEED_SCALE_SECONDS
+        weight = moving if moving > mean else mean                # max(mean, moving), as Python's
+        state[SPEED_SCALE] += (reading / estimate - state[SPEED_SCALE]) * weight
+    return reading, math.nan
+
+
+@njit(cache=True)
+def _ekf_step(s, state, constants, elapsed):  # pragma: no cover (compiled)
+    """One EKF step (`ekf_cycle`) on the filtered sample `s`, in place on `state`, `elapsed` s after the start:
+    the attitude from the normalised quaternion; Q boosted for the wind during the first seconds (Sec. 5.4); R
+    with a_z's variance times K_az (eq. 39, corrected), each isolated sensor's rows at the fault covariance
+    (Sec. 6.2), and with the propulsion model the pusher speed of `_pusher_speed` (a_x's variance where it
+    gives one)."""
+    q = s[6:10]
+    q = q / math.sqrt(np.dot(q, q))                               # q / np.linalg.norm(q)
+    Rot = rotation_matrix((q[0], q[1], q[2], q[3]))
+    omega_p, skew = s[13], s[18]
+    Q = (constants[Q_BOOSTED] if elapsed < constants[BOOST_SECONDS] else constants[Q_MATRIX]).reshape(9, 9).copy()
+    R = constants[R_MATRIX].reshape(6, 6).copy()
+    R[5, 5] *= _az_covariance_gain(skew)                          # eq. (39), corrected
+    for c in range(6):
+        if state[FAULTED.start + c] == 1.0:                       # Sec. 6.2: a faulty measurement no longer updates
+            R[c, c] = constants[FAULT_VARIANCE]
+    if constants[PROPULSION] == 1.0:
+        omega_p, variance = _pusher_speed(state, constants, omega_p, s[19], skew)
+        if variance == variance:
+            R[3, 3] = variance                                    # a_x back in use, on the current's speed
+    x, P, innovation = ekf_cycle(s, state[STATE].copy(), state[COVARIANCE].reshape(6, 6).copy(), constants[EKF_DT],
+                                 Rot, Q, R, constants[AERO], constants[PUSHER], constants[MODEL], omega_p)
+    state[STATE], state[COVARIANCE], state[INNOVATION] = x, P.ravel(), innovation
+
+
 class TakeoffGate:
     """001 Sec. 5.3 starts the EKF once airborne. `gate(z)` (position down, m, one reading per call) is True
     once the height averaged over the last `window` s of readings stands `height` m above its average over
@@ -451,6 +580,7 @@ class AirdataEkfDetector:
         self.takeoff, self.velocity_key = TakeoffGate(s.takeoff_height, s.takeoff_window, sample_hz), s.velocity_key
         self._keys = ("accel", "gyro", "attitude", self.velocity_key, "pusher_speed", "hover_rotor_speed", "skew")
         self._ba = butterworth_prefilter(sample_hz, s.prefilter_hz)
+        self._lowpass = biquad_constants(*self._ba)
         if s.pitot_reference not in ("airspeed", "forward"):
             raise ValueError(f"pitot_reference: {s.pitot_reference!r}; accepted: ['airspeed', 'forward']")
         self.pitot_key, self.pitot_reference = s.pitot_key, s.pitot_reference
@@ -467,9 +597,37 @@ class AirdataEkfDetector:
             sensor: {c: PitotResidualDetector(ekf_hz, spec.norm, spec.derivative, spec.sign) for c in spec.channels}
             for sensor, spec in innovation_detectors.items()}
         self.fault_covariance, self.record = float(s.fault_covariance), bool(s.record)
+        # the innovation tests' states and constants, one row per channel (each detector's state is its row), and
+        # each row's channel and sensor (`innovation_bank`)
+        rows = [(k, c, d) for k, channels in enumerate(self.innovation_detectors.values()) for c, d in channels.items()]
+        self._innovation_states = np.zeros((len(rows), RESIDUAL_STATE_SIZE))
+        self._innovation_constants = np.zeros((len(rows), RESIDUAL_CONSTANTS_SIZE + 2))
+        for i, (k, c, d) in enumerate(rows):
+            self._innovation_constants[i] = (*d._constants, c, k)
+            d._state = self._innovation_states[i]
+        self._hits = np.zeros(len(self.innovation_detectors), dtype=np.int64)
+        # the pitot tests' states and constants in one array each (each test's state is its part)
+        tests = (self.pitot_detector, self.cusum, self.ramp)
+        self._pitot_states = np.concatenate([test._state for test in tests])
+        self._pitot_constants = np.concatenate([test._constants for test in tests])
+        at = 0
+        for test in tests:
+            test._state, at = self._pitot_states[at:at + test._state.size], at + test._state.size
+        # `_ekf_detect`'s own state (armed, the raw residual, an innovation alarm latched) and constants
+        self._detect = np.zeros(DETECT_SIZE)
+        self._published = np.zeros(PUBLISHED_SIZE)           # `_publish`
+        self._detect[DETECTION_DELAY:] = (self.detection_delay, float(self.pitot_reference == "airspeed"),
+                                          self.ramp_min_airspeed)
         self.rollback = {sensor: float(spec.rollback) for sensor, spec in innovation_detectors.items()}
         self.confirmations = {sensor: PitotConfirmation(*spec.pitot_confirmation, ekf_hz)
                               for sensor, spec in innovation_detectors.items() if spec.pitot_confirmation is not None}
+        # one row per sensor, its last constant 1.0 where the sensor has a confirmation (its state is the row)
+        self._confirmation_states = np.zeros((len(innovation_detectors), CONFIRMATION_STATE_SIZE))
+        self._confirmation_constants = np.zeros((len(innovation_detectors), CONFIRMATION_CONSTANTS_SIZE + 1))
+        for k, sensor in enumerate(innovation_detectors):
+            if sensor in self.confirmations:
+                self._confirmation_constants[k] = (*self.confirmations[sensor]._constants, 1.0)
+                self.confirmations[sensor]._state = self._confirmation_states[k]
         self.current_checks = {sensor: RpmCurrentCheck(params, sample_hz, *spec.current_check,
                                                        coefficient_error=s.coefficient_error, error_seed=s.error_seed)
                                for sensor, spec in innovation_detectors.items() if spec.current_check is not None}
@@ -479,18 +637,43 @@ class AirdataEkfDetector:
         self._propulsion = (PropulsionModel(params, s.coefficient_error, s.error_seed)
                             if self._current_variance is not None else None)
         self._history_length = max([round(t * ekf_hz) for t in self.rollback.values()], default=0) + 1
+        # the compiled EKF step's state (`_ekf_step`: x, P, the innovation, the pusher speed's scale and its sample
+        # count, then the rows faulted and whether the pusher RPM is isolated) and constants
+        self._ekf_state = np.zeros(EKF_STATE_SIZE)
+        if self._propulsion is None:
+            speed = (0.0,) * 6
+        else:
+            m = self._propulsion
+            _, c_v, i_0 = m.x_star.tolist()
+            rho, d, (cq0, cq1, cq2) = m.rho, m.D, m.cq
+            # speed_from_current's constant factors, each the product it stands for there, bit for bit
+            speed = (rho * d ** 5 * cq0 / (TWO_PI * TWO_PI), rho * d ** 4 * cq1, rho * d ** 3 * cq2, c_v, m.k_e, i_0)
+        self._ekf_constants = np.concatenate((
+            (self.dt, self.wind_boost_seconds, self.fault_covariance,
+             math.nan if self._current_variance is None else self._current_variance,
+             float(self._propulsion is not None)), speed, self.model.constants, self.model.pusher, self.Q.ravel(),
+            self._Q_boosted.ravel(), self.R.ravel(), self.model.aero))
+        # the compiled sample step's state (`_prepare`): the last quaternion, whether there is one, whether the
+        # prefilter has started, its memory (2 x the channels it filters: the 19 readings, + the pusher current
+        # where the EKF uses it); and the current checks' states, one row each (each check's state is its row)
+        self._channels = 20 if self._propulsion is not None else 19
+        self._run = np.zeros(PREFILTERED + 3 * self._channels)
+        checks = list(self.current_checks.values())
+        self._check_states = np.zeros((len(checks), CHECK_STATE_SIZE))
+        self._check_constants = np.zeros((len(checks), checks[0]._constants.size if checks else 0))
+        for i, check in enumerate(checks):
+            self._check_constants[i], check._state = check._constants, self._check_states[i]
         self.reset()
 
     def reset(self) -> None:
-        self.x = np.zeros(6)                                   # Sec. 5.3: body velocity and wind start at 0
-        self.P = np.diag(np.concatenate([np.ones(3), np.diag(self.Q)[6:]]))
-        self.innovation = np.zeros(6)
+        self._ekf_state[:] = 0.0                               # Sec. 5.3: body velocity and wind start at 0
+        self._ekf_state[COVARIANCE] = np.diag(np.concatenate([np.ones(3), np.diag(self.Q)[6:]])).ravel()
+        self._ekf_state[SPEED_SCALE] = 1.0
         self.started, self.start_time, self._next_time = False, None, None
-        self._last_q = None
+        self._run[:] = 0.0
         self.takeoff.reset()
-        self._filter = Biquad(*self._ba)
-        self._filtered = None
-        self._pitot, self._armed, self._residual = None, False, 0.0
+        self._pitot = None
+        self._detect[:DETECTION_DELAY] = 0.0
         self.pitot_detector.reset()
         self.cusum.reset()
         self.ramp.reset()
@@ -506,45 +689,41 @@ class AirdataEkfDetector:
         self.innovation_unconfirmed = {sensor: None for sensor in self.current_checks}
         self._newest_alarm = None
         self._history = deque(maxlen=self._history_length)
-        self._speed_scale, self._speed_scale_samples = 1.0, 0
         self.trace = []
+        self._published[:] = 0.0                            # the outputs at x = 0, residual 0
+        self._status = None                                  # what status() returns, when built
 
     def update(self, readings: dict, time: float, command=None) -> None:
         current = self._pusher_current(readings)
-        sample = self._sample(readings, current, time)
-        self._filtered = self._filter(sample)                  # Sec. 5: inputs and measurements alike
+        parts = [readings[key] for key in self._keys]
+        if current is not None:
+            parts.append((current,))
+        # the sample s of `_ekf_cycle` (the readings of `_keys`, then the pusher current), prefiltered (Sec. 5:
+        # inputs and measurements alike), and the current checks, every sample, so their filters run before the
+        # EKF starts (each low-passes the raw pusher speed and current itself, so it also runs alone)
+        if not _prepare(_flat(parts), self._run, self._lowpass, self._check_states, self._check_constants):
+            self._reject_non_finite(readings, current, time)
         if self.pitot_key in readings:
             self._pitot = _first(readings[self.pitot_key])
-        # every sample, so their filters run before the EKF starts; they need the raw pusher speed and current
-        # (each check low-passes them itself, so it also runs alone on recorded readings)
-        for check in self.current_checks.values():
-            check.update(float(sample[13]), current)
         if not self.started:
             if not self.takeoff(float(readings["position"][2])):   # Sec. 5.3: start once airborne
                 return
             self.started, self.start_time, self._next_time = True, float(time), float(time)
+            self._status = None
         if time + 1e-9 >= self._next_time:
             self._next_time += self.dt
             self._ekf(time)
+            self._status = None
 
-    def _sample(self, readings: dict, current: float | None, time: float) -> np.ndarray:
-        """The readings of `_keys` as one array (the sample s of `_ekf_cycle`), the attitude's sign kept
-        continuous; s[19] is the pusher current where the EKF uses it, filtered like the RPM it stands in for."""
-        parts = [readings[key] for key in self._keys]
-        if self._propulsion is not None:
-            parts.append((current,))
-        sample = _flat(parts)
-        q = sample[6:10]
-        if self._last_q is not None and q.dot(self._last_q) < 0.0:   # keep the quaternion's sign continuous
-            q *= -1.0
-        self._last_q = q
-        if not math.isfinite(sum(sample.tolist())):            # one check; the key is looked for only on failure
-            keys = self._keys + (("pusher_current",) if self._propulsion is not None else ())
-            for key in keys:
-                part = np.asarray(readings[key], dtype=float).reshape(-1)
-                if not np.all(np.isfinite(part)):
-                    raise ValueError(f"airdata_ekf: reading {key!r} is not finite at t = {time}: {part.tolist()}")
-        return sample
+    def _reject_non_finite(self, readings: dict, current: float | None, time: float) -> None:
+        """Raise the ValueError that names the first reading with a NaN or infinity."""
+        keys = self._keys + (("pusher_current",) if self._propulsion is not None else ())
+        for key in keys:
+            part = np.asarray(readings[key], dtype=float).reshape(-1)
+            if not np.all(np.isfinite(part)):
+                raise ValueError(f"airdata_ekf: reading {key!r} is not finite at t = {time}: {part.tolist()}")
+        speed = float(np.asarray(readings["pusher_speed"], dtype=float).reshape(-1)[0])
+        raise ValueError(f"rpm current check: pusher_speed {speed!r} and pusher_current {current!r} must be finite")
 
     def _pusher_current(self, readings: dict) -> float | None:
         """The pusher current reading, where the pusher RPM's speed_from_current or a current check needs it."""
@@ -558,24 +737,41 @@ class AirdataEkfDetector:
         return _first(readings["pusher_current"])
 
     def _ekf(self, time: float) -> None:
-        # no copies: the sample, x and P are replaced each step, never changed in place
-        self._history.append((time, self._filtered, self.x, self.P, (self._speed_scale, self._speed_scale_samples)))
-        self._ekf_cycle(self._filtered, time)
-        self._armed = time - self.start_time >= self.detection_delay - 1e-9
-        residual = self._pitot_residual(time)
-        if self._detect_innovation_faults(time, residual):
-            self._roll_back()
+        """One EKF step and the tests on it, compiled (`_ekf_detect`); on an innovation criterion that fired, the
+        sensor's alarm (`_detect_innovation_faults`), the roll-back on a new one, then the pitot tests."""
+        state, pitot, time = self._ekf_state[:EKF_HISTORY].copy(), self._pitot, float(time)
+        code = _ekf_detect(self._filtered, self._ekf_state, self._ekf_constants, time - self.start_time, time,
+                           math.nan if pitot is None else pitot, pitot is not None, self._detect,
+                           self._innovation_states, self._innovation_constants, self._confirmation_states,
+                           self._confirmation_constants, self._hits, self._pitot_states, self._pitot_constants,
+                           self._published)
+        if code == PITOT_NOT_FINITE:
+            raise ValueError(f"airdata_ekf: reading {self.pitot_key!r} is not finite at t = {time}")
+        self._history.append((time, self._filtered.copy(), state))
+        if code == INNOVATION_HITS:
+            if self._detect_innovation_faults(time):
+                self._roll_back()
             residual = self._pitot_residual(time)            # of the re-run state
-        # Sec. 6.2: a sensor fault must not be blamed on the pitot; and once one is found, 001 Sec. 7.3.2 notes
-        # the residual no longer fits the fault-free thresholds: the pitot tests stop (disarmed) from then on
-        pitot_armed = self._armed and not any(t is not None for t in self.innovation_alarms.values())
-        if residual is not None:
-            self._residual = residual
-            self.pitot_detector.update(self._residual, time, pitot_armed)
-            self.cusum.update(self._residual, time, pitot_armed)
-            self.ramp.update(self._residual, time, pitot_armed and self.forward_airspeed >= self.ramp_min_airspeed)
+            if residual is not None:
+                _pitot_tests(self._ekf_state, residual, time, self._detect, self._pitot_states, self._pitot_constants)
+            _publish(self._ekf_state, self._pitot_states, self._published)
         if self.record and self._armed:
             self.trace.append(self._trace_row(time))
+
+    @property
+    def _armed(self) -> bool:
+        """Whether the tests are armed (`detection_delay` s after the start)."""
+        return bool(self._detect[ARMED])
+
+    @property
+    def _residual(self) -> float:
+        """The last raw pitot residual."""
+        return float(self._detect[RESIDUAL])
+
+    @property
+    def _filtered(self) -> np.ndarray:
+        """The last prefiltered sample (a view of the sample step's state)."""
+        return self._run[PREFILTERED:PREFILTERED + self._channels]
 
     def _pitot_residual(self, time: float) -> float | None:
         """Sec. 6.1: r = pitot - EKF airspeed (None without a pitot reading)."""
@@ -595,9 +791,8 @@ class AirdataEkfDetector:
         if steps == 0:
             return
         replay = list(self._history)[-min(steps, len(self._history)):]
-        self.x, self.P = replay[0][2].copy(), replay[0][3].copy()
-        self._speed_scale, self._speed_scale_samples = replay[0][4]
-        for time, sample, *_ in replay:
+        self._ekf_state[:EKF_HISTORY] = replay[0][2]
+        for time, sample, _ in replay:
             self._ekf_cycle(sample, time)
 
     def _rollback_seconds(self) -> float:
@@ -605,67 +800,46 @@ class AirdataEkfDetector:
                     if t is not None and t == self._newest_alarm], default=0.0)
 
     def _ekf_cycle(self, s: np.ndarray, time: float) -> None:
-        """One EKF step on the filtered sample `s`, with the covariances of the sensors' current state."""
-        q = s[6:10]
-        Rot = rotation_matrix((q / math.sqrt(q.dot(q))).tolist())    # q / np.linalg.norm(q)
-        omega_p, skew = float(s[13]), float(s[18])
-        model = self.model
-        # Sec. 5.4: faster wind convergence
-        Q = self._Q_boosted if time - self.start_time < self.wind_boost_seconds else self.Q
-        R = self.R.copy()
-        R[5, 5] *= az_covariance_gain(skew)                  # eq. (39), corrected
-        for sensor, alarm_time in self.innovation_alarms.items():
-            if alarm_time is not None:                       # Sec. 6.2: a faulty measurement no longer updates
-                for c in self.innovation_detectors[sensor]:
-                    R[c, c] = self.fault_covariance
-        if self._propulsion is not None:
-            omega_p, variance = self._pusher_speed(omega_p, float(s[19]), skew)
-            if variance is not None:
-                R[3, 3] = variance                           # a_x back in use, on the current's speed
-        self.x, self.P, self.innovation = ekf_cycle(s, self.x, self.P, self.dt, Rot, Q, R, model.aero, model.pusher,
-                                                    model.constants, omega_p)
+        """One EKF step on the filtered sample `s`, with the covariances of the sensors' current state
+        (`_ekf_step`)."""
+        _ekf_step(s, self._ekf_state, self._ekf_constants, time - self.start_time)
 
-    def _pusher_speed(self, reading: float, current: float, skew: float) -> tuple[float, float | None]:
-        """The pusher speed the EKF uses and, once the RPM sensor is isolated, a_x's variance (see
-        INNOVATION_DETECTORS["pusher_rpm"]["speed_from_current"]). While the sensor is trusted, the ratio of the
-        read speed to the one the model gives from the current is averaged (over SPEED_SCALE_SECONDS once
-        there are that many samples) in forward flight with the pusher driven; after, it scales the model's
-        speed. It takes out the propulsion model's own error (`coefficient_error` on k_e and C_Q), which
-        alone biased the speed by up to 8%. Not in the transition: spinning up against the ESC's current
-        limit the ratio is ~0.86, in cruise ~1.0. The ratio is part of the state the
-        roll-back restores, so the faulty samples before the alarm do not enter it."""
-        isolated = self.innovation_alarms.get("pusher_rpm") is not None
-        if not isolated and (skew < SPEED_SCALE_MIN_SKEW or reading <= SPEED_SCALE_MIN_SPEED):
-            return reading, None
-        estimate = speed_from_current(self._propulsion, current, float(self.x[0]))
-        if isolated:
-            return self._speed_scale * estimate, self._current_variance
-        if estimate > SPEED_SCALE_MIN_SPEED:
-            self._speed_scale_samples += 1                   # the mean of the ratios so far, then a moving one
-            weight = max(1.0 / self._speed_scale_samples, self.dt / SPEED_SCALE_SECONDS)
-            self._speed_scale += (reading / estimate - self._speed_scale) * weight
-        return reading, None
+    @property
+    def x(self) -> np.ndarray:
+        """The EKF state [u v w mu_x mu_y mu_z] (a view of the detector's state)."""
+        return self._ekf_state[STATE]
 
-    def _detect_innovation_faults(self, time: float, pitot_residual: float | None) -> bool:
+    @property
+    def P(self) -> np.ndarray:
+        """Its covariance (a view)."""
+        return self._ekf_state[COVARIANCE].reshape(6, 6)
+
+    @property
+    def innovation(self) -> np.ndarray:
+        """The last EKF step's measurement innovation z - h(x-) (a view)."""
+        return self._ekf_state[INNOVATION]
+
+    def _detect_innovation_faults(self, time: float) -> bool:
         """Sec. 6.2: each innovation channel through its Table 2 criteria, and a sensor's `PitotConfirmation`
-        where it has one; the first alarm of a sensor's criteria latches it (its rows then get
-        `fault_covariance`, see `_ekf_cycle`). True on a new alarm."""
-        new, innovation = False, self.innovation.tolist()
-        for sensor, channels in self.innovation_detectors.items():
-            hits = [d.criterion for c, d in channels.items() if d.update(innovation[c], time, self._armed)]
-            confirmation = self.confirmations.get(sensor)
-            if confirmation is not None and pitot_residual is not None:
-                level = max(d.norm.level(d.residual) for d in channels.values())   # one-sided as the norm row
-                if confirmation.update(level, pitot_residual, self._armed):
-                    hits.append("pitot_confirmation")
+        where it has one (`innovation_bank`, run by `_ekf_detect`: `_hits`); the first alarm of a sensor's criteria
+        latches it (its rows then get `fault_covariance`, see `_ekf_cycle`). True on a new alarm."""
+        new = False
+        for sensor, hit in zip(self.innovation_detectors, self._hits.tolist()):
+            if not hit:
+                continue
             check = self.current_checks.get(sensor)
-            if hits and check is not None and not check.holding:
+            if check is not None and not check.holding:
                 if self.innovation_unconfirmed[sensor] is None:
                     self.innovation_unconfirmed[sensor] = float(time)
                 continue
-            if hits and self.innovation_alarms[sensor] is None:
+            if self.innovation_alarms[sensor] is None:
                 self.innovation_alarms[sensor] = self._newest_alarm = float(time)
-                self.innovation_criteria[sensor] = hits[0]
+                self.innovation_criteria[sensor] = HITS[hit]
+                for c in self.innovation_detectors[sensor]:    # Sec. 6.2: its rows no longer update (`_ekf_step`)
+                    self._ekf_state[FAULTED.start + c] = 1.0
+                if sensor == "pusher_rpm":
+                    self._ekf_state[RPM_ISOLATED] = 1.0
+                self._detect[LATCHED] = 1.0                  # the pitot tests stop (`_pitot_tests`)
                 new = True
         return new
 
@@ -713,28 +887,192 @@ class AirdataEkfDetector:
         return max(float(self.x[0]), 0.0)
 
     def outputs(self) -> dict:
-        # np.clip's floats (NaN kept) by min and max, cheaper on three values
-        return {"airspeed": np.array([min(self.airspeed, 200.0)]),
-                "wind": np.array([min(max(w, -100.0), 100.0) for w in self.x[3:].tolist()]),
-                "pitot_residual": np.array([min(max(self.pitot_detector.residual, -200.0), 200.0)])}
+        """The published estimates (`_publish`, after each EKF step): one copy per call, three views of it."""
+        published = self._published.copy()
+        return {"airspeed": published[0:1], "wind": published[1:4], "pitot_residual": published[4:5]}
 
     def status(self) -> dict:
-        d = self.pitot_detector
-        pitot_alarm_time = self.pitot_alarm_time()
-        alarm_time, isolated = self.first_alarm()
+        """The status. It changes only at the start and at an EKF step: built once after each, then a new dict
+        per call (the lists and dicts in it are built anew after each change and never changed in place)."""
+        if self._status is None:
+            self._status = self._build_status()
+        return dict(self._status)
+
+    def _build_status(self) -> dict:
+        """The status from one list of the pitot tests' states and one of the EKF's (as `pitot_alarm_time`,
+        `first_alarm` and the tests' properties read them)."""
+        v, cusum, ramp = self._pitot_states[:PITOT_STATUS].tolist(), RESIDUAL_STATE_SIZE, PITOT_RAMP
+        times = {"table2": v[R_ALARM_TIME] if v[R_ALARM] else None,
+                 "cusum": v[cusum + C_ALARM_TIME] if v[cusum + C_ALARM] else None,
+                 "ramp": v[ramp + G_ALARM_TIME] if v[ramp + G_ALARM] else None}
+        chosen = times.values() if self.criterion == "either" else [times[self.criterion]]
+        pitot_times = [t for t in chosen if t is not None]
+        pitot_alarm_time = min(pitot_times) if pitot_times else None
+        events = [(t, sensor) for sensor, t in self.innovation_alarms.items() if t is not None]
+        if pitot_alarm_time is not None:
+            events.append((pitot_alarm_time, "pitot"))
+        alarm_time, isolated = min(events) if events else (None, None)
+        ekf = self._ekf_state[:INNOVATION.stop].tolist()
         return {"alarm": alarm_time is not None, "alarm_time": alarm_time, "isolated": isolated,
                 "criterion": self.criterion, "pitot_alarm": pitot_alarm_time is not None,
-                "pitot_alarm_time": pitot_alarm_time, "alarm_time_table2": d.alarm_time,
-                "alarm_time_cusum": self.cusum.alarm_time, "alarm_time_ramp": self.ramp.alarm_time,
-                "table2_criterion": d.criterion, "cusum_statistic": float(self.cusum.statistic),
-                "ramp_statistic": float(self.ramp.statistic), "innovation_alarms": dict(self.innovation_alarms),
+                "pitot_alarm_time": pitot_alarm_time, "alarm_time_table2": times["table2"],
+                "alarm_time_cusum": times["cusum"], "alarm_time_ramp": times["ramp"],
+                "table2_criterion": CRITERIA[int(v[R_CRITERION])], "cusum_statistic": v[cusum + C_STATISTIC],
+                "ramp_statistic": v[ramp + G_STATISTIC], "innovation_alarms": dict(self.innovation_alarms),
                 "innovation_criteria": dict(self.innovation_criteria),
                 "innovation_unconfirmed": dict(self.innovation_unconfirmed),
-                "pitot_residual": float(d.residual),
-                "pitot_residual_derivative": float(d.derivative),
+                "pitot_residual": v[R_RESIDUAL],
+                "pitot_residual_derivative": v[R_DERIVATIVE],
                 "detection_armed": self._armed, "started": self.started,
-                "start_time": self.start_time, "airspeed": self.airspeed, "wind": self.x[3:].tolist(),
-                "air_velocity_body": self.x[:3].tolist(), "innovation": self.innovation.tolist()}
+                "start_time": self.start_time, "airspeed": float(self._published[AIRSPEED]), "wind": ekf[3:6],
+                "air_velocity_body": ekf[0:3], "innovation": ekf[INNOVATION]}
+
+
+#: `innovation_bank`'s answer per sensor: no criterion fired, or the first that did
+HITS = (None, "norm", "derivative", "pitot_confirmation")
+CHANNEL, SENSOR, CONFIRMED = RESIDUAL_CONSTANTS_SIZE, RESIDUAL_CONSTANTS_SIZE + 1, CONFIRMATION_CONSTANTS_SIZE
+
+
+@njit(cache=True)
+def innovation_bank(innovation, time, armed, pitot_residual, states, constants, confirmation_states,
+                    confirmation_constants, hits):  # pragma: no cover (compiled)
+    """Sec. 6.2: every innovation channel's Table 2 criteria (`residual_step`, one row of `states` each, in the
+    order of the sensors and their channels), then each sensor's `PitotConfirmation` (where it has one and there
+    is a pitot residual, NaN: none) on the largest norm-criterion level of its channels (one-sided as the norm
+    row; Python's max: the first of equals). `hits[k]` (index into HITS): the criterion that the first of sensor
+    k's channels whose alarm is raised fired on, else 3 if its confirmation holds, else 0."""
+    hits[:] = 0
+    for i in range(states.shape[0]):
+        sensor = int(constants[i, SENSOR])
+        if residual_step(states[i], constants[i], innovation[int(constants[i, CHANNEL])], time, armed) \
+                and hits[sensor] == 0:
+            hits[sensor] = int(states[i, R_CRITERION])
+    if pitot_residual != pitot_residual:
+        return
+    for k in range(hits.size):
+        if confirmation_constants[k, CONFIRMED] == 0.0:
+            continue
+        first, level = True, 0.0
+        for i in range(states.shape[0]):
+            if int(constants[i, SENSOR]) == k:
+                value = criterion_level(states[i, R_RESIDUAL], constants[i, R_NORM_SIGN])
+                if first or value > level:
+                    first, level = False, value
+        if confirmation_step(confirmation_states[k], confirmation_constants[k], level, pitot_residual, armed) \
+                and hits[k] == 0:
+            hits[k] = 3
+
+
+#: `AirdataEkfDetector._run`: the last quaternion, whether there is one, whether the prefilter has started, then
+#: the prefiltered sample and the prefilter's memory (2 x its channels)
+LAST_Q, HAS_LAST_Q, PREFILTER_STARTED, PREFILTERED = slice(0, 4), 4, 5, 6
+
+
+@njit(cache=True)
+def _prepare(sample, run, lowpass, checks, check_constants):  # pragma: no cover (compiled)
+    """One sample, in place on `run` and the current checks' states: the quaternion's sign kept continuous
+    (flipped where its dot product with the last is negative), the prefilter (Sec. 5, `biquad_step`) on the
+    first channels (the pusher current only where the EKF uses it), then each current check (`check_step`) on
+    the raw pusher speed s[13] and current s[19]. The filtered sample goes to `run`; False, the state untouched,
+    if a reading is not finite."""
+    for value in sample:
+        if not math.isfinite(value):
+            return False
+    q = sample[6:10]
+    if run[HAS_LAST_Q] == 1.0 and np.dot(q, run[LAST_Q]) < 0.0:
+        for i in range(4):
+            q[i] *= -1.0
+    run[LAST_Q], run[HAS_LAST_Q] = q, 1.0
+    channels = (run.size - PREFILTERED) // 3
+    memory = run[PREFILTERED + channels:].reshape(2, channels)
+    run[PREFILTERED:PREFILTERED + channels] = biquad_step(lowpass, memory, sample[:channels],
+                                                          run[PREFILTER_STARTED] == 0.0)
+    run[PREFILTER_STARTED] = 1.0
+    for i in range(checks.shape[0]):
+        check_step(checks[i], check_constants[i], sample[13], sample[19])
+    return True
+
+
+#: `AirdataEkfDetector._detect`: whether the tests are armed, the raw pitot residual, whether an innovation alarm
+#: has latched; then its constants: the detection delay, 1.0 for 001's residual (|V|) and the ramp test's least
+#: forward airspeed
+ARMED, RESIDUAL, LATCHED, DETECTION_DELAY, AIRSPEED_REFERENCE, RAMP_MIN_AIRSPEED, DETECT_SIZE = range(7)
+#: `_ekf_detect`'s answers besides 0 (done)
+PITOT_NOT_FINITE, INNOVATION_HITS = -1, 1
+
+
+@njit(cache=True)
+def _ekf_detect(s, state, constants, elapsed, time, pitot, has_pitot, detect, innovation_states,
+                innovation_constants, confirmation_states, confirmation_constants, hits, pitot_states,
+                pitot_constants, published):  # pragma: no cover (compiled)
+    """One EKF step on the filtered sample `s` (`_ekf_step`, `elapsed` s after the start) and the tests on it: armed
+    `detection_delay` s after the start; the pitot residual r = pitot - EKF airspeed (Sec. 6.1, `has_pitot`); the
+    innovation tests (`innovation_bank`, Sec. 6.2); then, unless one of their criteria fired (INNOVATION_HITS:
+    the caller latches the alarm and runs the pitot tests), the pitot tests (`_pitot_tests`) and the outputs
+    (`_publish`). PITOT_NOT_FINITE, the state untouched, for a pitot reading that is not finite."""
+    if has_pitot and not math.isfinite(pitot):
+        return PITOT_NOT_FINITE
+    _ekf_step(s, state, constants, elapsed)
+    armed = elapsed >= detect[DETECTION_DELAY] - 1e-9
+    detect[ARMED] = armed
+    residual = pitot - _pitot_reference(state, detect) if has_pitot else math.nan
+    innovation_bank(state[INNOVATION], time, armed, residual, innovation_states, innovation_constants,
+                    confirmation_states, confirmation_constants, hits)
+    for hit in hits:
+        if hit != 0:
+            return INNOVATION_HITS
+    if has_pitot:
+        _pitot_tests(state, residual, time, detect, pitot_states, pitot_constants)
+    _publish(state, pitot_states, published)
+    return 0
+
+
+#: `AirdataEkfDetector._published`: the outputs (airspeed, wind, pitot residual, clipped to their spaces), then
+#: the airspeed itself; where the pitot tests' states start the ramp test's, and the part the status reads
+PUBLISHED_SIZE, AIRSPEED = 6, 5
+PITOT_RAMP = RESIDUAL_STATE_SIZE + CUSUM_STATE_SIZE
+PITOT_STATUS = PITOT_RAMP + G_RING
+
+
+@njit(cache=True)
+def _publish(state, pitot_states, published):  # pragma: no cover (compiled)
+    """The outputs after an EKF step: the airspeed |V| (np.linalg.norm), the wind and the filtered pitot residual,
+    clipped as np.clip (by Python's min and max, NaN kept), then |V| itself."""
+    airspeed = math.sqrt(np.dot(state[0:3], state[0:3]))
+    published[0] = 200.0 if airspeed > 200.0 else airspeed          # min(airspeed, 200.0)
+    for i in range(3):
+        w = -100.0 if state[3 + i] < -100.0 else state[3 + i]      # max(w, -100.0)
+        published[1 + i] = 100.0 if w > 100.0 else w                # min(., 100.0)
+    r = -200.0 if pitot_states[R_RESIDUAL] < -200.0 else pitot_states[R_RESIDUAL]
+    published[4] = 200.0 if r > 200.0 else r
+    published[AIRSPEED] = airspeed
+
+
+@njit(cache=True)
+def _pitot_reference(state, detect):  # pragma: no cover (compiled)
+    """What the pitot residual compares the pitot with: the EKF airspeed |V| (001), or max(u, 0)."""
+    if detect[AIRSPEED_REFERENCE] == 1.0:
+        return math.sqrt(np.dot(state[0:3], state[0:3]))            # np.linalg.norm(v)
+    return 0.0 if state[0] < 0.0 else state[0]                      # max(u, 0.0), as Python's
+
+
+@njit(cache=True)
+def _pitot_tests(state, residual, time, detect, pitot_states, pitot_constants):  # pragma: no cover (compiled)
+    """The pitot tests on the residual (Table 2 `residual_step`, `cusum_step`, `ramp_step`: their states and
+    constants one after the other), armed while no innovation alarm has latched (Sec. 6.2: a sensor fault must
+    not be blamed on the pitot; and once one is found, 001 Sec. 7.3.2 notes the residual no longer fits the
+    fault-free thresholds: the pitot tests stop from then on); the ramp test only at a forward airspeed of at
+    least `ramp_min_airspeed`."""
+    detect[RESIDUAL] = residual
+    armed = detect[ARMED] == 1.0 and detect[LATCHED] == 0.0
+    forward = 0.0 if state[0] < 0.0 else state[0]
+    cusum_at, ramp_at = RESIDUAL_STATE_SIZE + CUSUM_STATE_SIZE, RESIDUAL_CONSTANTS_SIZE + CUSUM_CONSTANTS_SIZE
+    residual_step(pitot_states[:RESIDUAL_STATE_SIZE], pitot_constants[:RESIDUAL_CONSTANTS_SIZE], residual, time,
+                  armed)
+    cusum_step(pitot_states[RESIDUAL_STATE_SIZE:cusum_at], pitot_constants[RESIDUAL_CONSTANTS_SIZE:ramp_at],
+               residual, time, armed)
+    ramp_step(pitot_states[cusum_at:], pitot_constants[ramp_at:], residual, time,
+              armed and forward >= detect[RAMP_MIN_AIRSPEED])
 
 
 def _first(reading) -> float:

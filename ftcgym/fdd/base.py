@@ -98,6 +98,18 @@ def biquad_step(constants, z, x, first):  # pragma: no cover (compiled)
     return _biquad_channels(constants[:3], constants[3:6], z, x)
 
 
+@njit(cache=True)
+def biquad_scalar(constants, memory, at, x, first):  # pragma: no cover (compiled)
+    """`Biquad` on one float from compiled code (`biquad_constants`): the output; its memory memory[at],
+    memory[at + 1] in place, started at steady state, zi x, on the `first` sample."""
+    if first:
+        memory[at], memory[at + 1] = constants[6] * x, constants[7] * x
+    y = constants[0] * x + memory[at]
+    memory[at] = constants[1] * x - constants[4] * y + memory[at + 1]
+    memory[at + 1] = constants[2] * x - constants[5] * y
+    return y
+
+
 class AlarmLatch:
     """The first alarm of a flight: when it came and what it isolated (later alarms do not move it)."""
 

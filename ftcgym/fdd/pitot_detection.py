@@ -16,6 +16,11 @@ MATLAB detector (github.com/frlarocque/airspeed_kalman_filter, kalman_filter_bas
 counts the same way (a fault once more than T/dt consecutive samples exceed the threshold: 7 and 3 at 25 Hz),
 with the same 2nd-order Butterworth and backward difference; so the floor of the incipient delay (a -2.5 m/s^2
 ramp reaches 5.5 m/s at 2.2 s, plus the filter's lag, the sample phase and the hold: ~2.50 s) is 001's too.
+
+Each test's sample is compiled (numba: `residual_step`, `cusum_step`, `confirmation_step`, `ramp_step`, on the
+test's state and constants packed in two arrays; the air-data EKF runs its innovation tests in one compiled call,
+`innovation_bank`) with the operations and their order of the plain-Python tests they replaced (np.add.accumulate's
+running sums, elementwise products and quotients), so every statistic and alarm keeps its bits.
 """
 from __future__ import annotations
 
@@ -23,9 +28,10 @@ import math
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 from scipy import signal
 
-from .base import Biquad
+from .base import biquad_constants, biquad_scalar
 
 
 class ThresholdTest(NamedTuple):
@@ -121,35 +127,77 @@ class PitotResidualDetector:
             if not (0.0 < cutoff < 0.5 * sample_hz):
                 raise ValueError(f"pitot detection: cutoff {cutoff!r} Hz must lie in (0, {0.5 * sample_hz}) Hz")
         self.sample_hz = float(sample_hz)
-        self._norm_filter = Biquad(*signal.butter(2, norm[2], btype="low", fs=sample_hz))
-        self._deriv_filter = Biquad(*signal.butter(2, derivative[2], btype="low", fs=sample_hz))
         self.norm = ThresholdCriterion(norm[0], norm[1], sample_hz, sign)   # `sign`: a one-sided norm criterion
         self.deriv = ThresholdCriterion(derivative[0], derivative[1], sample_hz)
+        self._constants = np.concatenate((
+            biquad_constants(*signal.butter(2, norm[2], btype="low", fs=sample_hz)),
+            biquad_constants(*signal.butter(2, derivative[2], btype="low", fs=sample_hz)),
+            (self.sample_hz, self.norm.threshold, self.norm.samples, self.norm.sign, self.deriv.threshold,
+             self.deriv.samples)))
+        self._state = np.zeros(RESIDUAL_STATE_SIZE)
         self.reset()
 
     def reset(self) -> None:
-        self.norm.reset()
-        self.deriv.reset()
-        self._norm_filter.reset()
-        self._deriv_filter.reset()
-        self._last = None
-        self.residual, self.derivative = 0.0, 0.0
-        self.alarm, self.alarm_time, self.criterion = False, None, None
+        self._state[:] = 0.0
+
+    residual = property(lambda self: float(self._state[R_RESIDUAL]), doc="The low-passed residual (norm filter).")
+    derivative = property(lambda self: float(self._state[R_DERIVATIVE]), doc="Its derivative (derivative filter).")
+    alarm = property(lambda self: bool(self._state[R_ALARM]), doc="Whether a criterion has fired (latched).")
+
+    @property
+    def alarm_time(self) -> float | None:
+        return float(self._state[R_ALARM_TIME]) if self._state[R_ALARM] else None
+
+    @property
+    def criterion(self) -> str | None:
+        """The criterion of the alarm: "norm" or "derivative" (None: no alarm yet)."""
+        return CRITERIA[int(self._state[R_CRITERION])]
 
     def update(self, residual: float, time: float, armed: bool = True) -> bool:
-        r = float(residual)
-        self.residual, rd = self._norm_filter(r), self._deriv_filter(r)
-        self.derivative = 0.0 if self._last is None else (rd - self._last) * self.sample_hz
-        self._last = rd
-        if not armed:
-            self.norm.reset()
-            self.deriv.reset()
-            return self.alarm
-        hit_norm, hit_deriv = self.norm(self.residual), self.deriv(self.derivative)
-        if not self.alarm and (hit_norm or hit_deriv):
-            self.alarm, self.alarm_time = True, float(time)
-            self.criterion = "derivative" if hit_deriv else "norm"
-        return self.alarm
+        return residual_step(self._state, self._constants, float(residual), float(time), armed)
+
+
+#: `PitotResidualDetector._state`: the filtered residual, its derivative, the last derivative-filter output and
+#: whether there is one, the alarm (1.0), its time, its criterion (index into CRITERIA), the two criteria's
+#: counts, whether the filters have started, the norm filter's memory, the derivative filter's.
+(R_RESIDUAL, R_DERIVATIVE, R_LAST, R_HAS_LAST, R_ALARM, R_ALARM_TIME, R_CRITERION, R_NORM_COUNT, R_DERIV_COUNT,
+ R_STARTED, R_NORM_MEMORY, R_DERIV_MEMORY, RESIDUAL_STATE_SIZE) = (*range(10), 10, 12, 14)
+#: `PitotResidualDetector._constants`: the norm filter (`biquad_constants`), the derivative filter, sample_hz,
+#: the norm criterion's threshold, samples and sign, the derivative criterion's threshold and samples.
+R_NORM_FILTER, R_DERIV_FILTER, R_SAMPLE_HZ, R_NORM_THRESHOLD, R_NORM_SAMPLES, R_NORM_SIGN = (
+    slice(0, 8), slice(8, 16), 16, 17, 18, 19)
+R_DERIV_THRESHOLD, R_DERIV_SAMPLES, RESIDUAL_CONSTANTS_SIZE = 20, 21, 22
+CRITERIA = (None, "norm", "derivative")
+
+
+@njit(cache=True)
+def criterion_level(value, sign):  # pragma: no cover (compiled)
+    """`ThresholdCriterion.level`: |value|, or sign * value when one-sided."""
+    return abs(value) if sign == 0.0 else sign * value
+
+
+@njit(cache=True)
+def residual_step(state, constants, r, time, armed):  # pragma: no cover (compiled)
+    """`PitotResidualDetector.update` in place on its state: both low-passes, the derivative by backward
+    difference times sample_hz, then (while armed; else the counts restart) the norm and derivative criteria
+    (`ThresholdCriterion`); the first that fires latches the alarm. Returns the alarm."""
+    first = state[R_STARTED] == 0.0
+    state[R_STARTED] = 1.0
+    state[R_RESIDUAL] = residual = biquad_scalar(constants[R_NORM_FILTER], state, R_NORM_MEMORY, r, first)
+    rd = biquad_scalar(constants[R_DERIV_FILTER], state, R_DERIV_MEMORY, r, first)
+    derivative = 0.0 if state[R_HAS_LAST] == 0.0 else (rd - state[R_LAST]) * constants[R_SAMPLE_HZ]
+    state[R_DERIVATIVE], state[R_LAST], state[R_HAS_LAST] = derivative, rd, 1.0
+    if not armed:
+        state[R_NORM_COUNT] = state[R_DERIV_COUNT] = 0.0
+        return state[R_ALARM] == 1.0
+    level = criterion_level(residual, constants[R_NORM_SIGN])
+    norm_count = state[R_NORM_COUNT] + 1.0 if level >= constants[R_NORM_THRESHOLD] else 0.0
+    deriv_count = state[R_DERIV_COUNT] + 1.0 if abs(derivative) >= constants[R_DERIV_THRESHOLD] else 0.0
+    state[R_NORM_COUNT], state[R_DERIV_COUNT] = norm_count, deriv_count
+    hit_norm, hit_deriv = norm_count >= constants[R_NORM_SAMPLES], deriv_count >= constants[R_DERIV_SAMPLES]
+    if state[R_ALARM] == 0.0 and (hit_norm or hit_deriv):
+        state[R_ALARM], state[R_ALARM_TIME], state[R_CRITERION] = 1.0, time, 2.0 if hit_deriv else 1.0
+    return state[R_ALARM] == 1.0
 
 
 class ResidualCusum:
@@ -176,25 +224,47 @@ class ResidualCusum:
             raise ValueError(f"cusum: need drift >= 0, threshold > 0, 0 < cutoff < {0.5 * sample_hz} Hz; got "
                              f"{drift!r}, {threshold!r}, {cutoff!r}")
         self.sample_hz, self.drift, self.threshold = float(sample_hz), float(drift), float(threshold)
-        self._filter = Biquad(*signal.butter(2, cutoff, btype="low", fs=sample_hz))
+        self._constants = np.concatenate((biquad_constants(*signal.butter(2, cutoff, btype="low", fs=sample_hz)),
+                                          (self.sample_hz, self.drift, self.threshold)))
+        self._state = np.zeros(CUSUM_STATE_SIZE)
         self.reset()
 
     def reset(self) -> None:
-        self._filter.reset()
-        self._last = None
-        self.statistic = 0.0
-        self.alarm, self.alarm_time = False, None
+        self._state[:] = 0.0
+
+    statistic = property(lambda self: float(self._state[C_STATISTIC]), doc="g, the CUSUM statistic.")
+    alarm = property(lambda self: bool(self._state[C_ALARM]), doc="Whether g has reached h (latched).")
+
+    @property
+    def alarm_time(self) -> float | None:
+        return float(self._state[C_ALARM_TIME]) if self._state[C_ALARM] else None
 
     def update(self, residual: float, time: float, armed: bool = True) -> bool:
-        r = self._filter(float(residual))
-        if armed and self._last is not None:
-            self.statistic = max(0.0, self.statistic + (self._last - r) - self.drift / self.sample_hz)
-        else:
-            self.statistic = 0.0
-        self._last = r
-        if armed and not self.alarm and self.statistic >= self.threshold:
-            self.alarm, self.alarm_time = True, float(time)
-        return self.alarm
+        return cusum_step(self._state, self._constants, float(residual), float(time), armed)
+
+
+#: `ResidualCusum._state`: g, the last filtered residual and whether there is one, the alarm, its time, whether
+#: the filter has started, its memory. `_constants`: the filter (`biquad_constants`), sample_hz, nu, h.
+C_STATISTIC, C_LAST, C_HAS_LAST, C_ALARM, C_ALARM_TIME, C_STARTED, C_MEMORY, CUSUM_STATE_SIZE = (*range(7), 8)
+C_FILTER, C_SAMPLE_HZ, C_DRIFT, C_THRESHOLD, CUSUM_CONSTANTS_SIZE = slice(0, 8), 8, 9, 10, 11
+
+
+@njit(cache=True)
+def cusum_step(state, constants, residual, time, armed):  # pragma: no cover (compiled)
+    """`ResidualCusum.update` in place on its state: g_k = max(0, g_k-1 + d_k - nu / f) while armed (else 0), the
+    alarm when g_k >= h. Returns the alarm."""
+    first = state[C_STARTED] == 0.0
+    state[C_STARTED] = 1.0
+    r = biquad_scalar(constants[C_FILTER], state, C_MEMORY, residual, first)
+    if armed and state[C_HAS_LAST] == 1.0:
+        g = state[C_STATISTIC] + (state[C_LAST] - r) - constants[C_DRIFT] / constants[C_SAMPLE_HZ]
+        state[C_STATISTIC] = g if g > 0.0 else 0.0                  # max(0.0, g), as Python's
+    else:
+        state[C_STATISTIC] = 0.0
+    state[C_LAST], state[C_HAS_LAST] = r, 1.0
+    if armed and state[C_ALARM] == 0.0 and state[C_STATISTIC] >= constants[C_THRESHOLD]:
+        state[C_ALARM], state[C_ALARM_TIME] = 1.0, time
+    return state[C_ALARM] == 1.0
 
 
 class PitotConfirmation:
@@ -217,24 +287,43 @@ class PitotConfirmation:
                              f"got {level!r}, {window!r}, {cutoff!r}")
         self.level, self.window_samples = float(level), math.ceil(window * sample_hz - 1e-9)
         self.criterion = ThresholdCriterion(residual, hold, sample_hz, sign=1)
-        self._filter = Biquad(*signal.butter(2, cutoff, btype="low", fs=sample_hz))
+        self._constants = np.concatenate((biquad_constants(*signal.butter(2, cutoff, btype="low", fs=sample_hz)),
+                                          (self.level, self.window_samples, self.criterion.threshold,
+                                           self.criterion.samples)))
+        self._state = np.zeros(CONFIRMATION_STATE_SIZE)
         self.reset()
 
     def reset(self) -> None:
-        self.criterion.reset()
-        self._filter.reset()
-        self._since_level = math.inf
-        self.residual, self.statistic = 0.0, 0.0
+        self._state[:] = 0.0
+        self._state[P_SINCE_LEVEL] = math.inf
+
+    residual = property(lambda self: float(self._state[P_RESIDUAL]), doc="The low-passed pitot residual.")
+    statistic = property(lambda self: float(self._state[P_STATISTIC]), doc="It while the window holds, else 0.")
 
     def update(self, level_signal: float, residual: float, armed: bool = True) -> bool:
-        self.residual = self._filter(float(residual))
-        self._since_level = 0 if level_signal >= self.level else self._since_level + 1
-        in_window = self._since_level < self.window_samples
-        self.statistic = self.residual if in_window else 0.0
-        if not armed:
-            self.criterion.reset()
-            return False
-        return self.criterion(self.statistic)
+        return confirmation_step(self._state, self._constants, float(level_signal), float(residual), armed)
+
+
+#: `PitotConfirmation._state`: the filtered residual, the statistic, samples since the level was reached, the
+#: criterion's count, whether the filter has started, its memory. `_constants`: the filter (`biquad_constants`),
+#: the level, the window (samples), the criterion's residual threshold and samples.
+P_RESIDUAL, P_STATISTIC, P_SINCE_LEVEL, P_COUNT, P_STARTED, P_MEMORY, CONFIRMATION_STATE_SIZE = (*range(6), 7)
+P_FILTER, P_LEVEL, P_WINDOW, P_THRESHOLD, P_SAMPLES, CONFIRMATION_CONSTANTS_SIZE = slice(0, 8), 8, 9, 10, 11, 12
+
+
+@njit(cache=True)
+def confirmation_step(state, constants, level_signal, residual, armed):  # pragma: no cover (compiled)
+    """`PitotConfirmation.update` in place on its state; returns whether the criterion holds."""
+    first = state[P_STARTED] == 0.0
+    state[P_STARTED] = 1.0
+    state[P_RESIDUAL] = r = biquad_scalar(constants[P_FILTER], state, P_MEMORY, residual, first)
+    state[P_SINCE_LEVEL] = 0.0 if level_signal >= constants[P_LEVEL] else state[P_SINCE_LEVEL] + 1.0
+    state[P_STATISTIC] = statistic = r if state[P_SINCE_LEVEL] < constants[P_WINDOW] else 0.0
+    if not armed:
+        state[P_COUNT] = 0.0
+        return False
+    state[P_COUNT] = state[P_COUNT] + 1.0 if statistic >= constants[P_THRESHOLD] else 0.0   # sign +1
+    return state[P_COUNT] >= constants[P_SAMPLES]
 
 
 class RampGlr:
@@ -280,38 +369,77 @@ class RampGlr:
         self._onset_end = self._m_minus_1.astype(int)
         self._window_end = self._onset_end + self._reference
         self._size, self._index = size, np.arange(size, dtype=float)     # samples before the newest
-        # each sample stored twice, newest at the lowest slot, so the last `size` are one slice, newest first
-        self._ring = np.zeros(2 * size)
+        # the compiled step's constants: sample_hz, sigma, the threshold, the window's size, the candidates'
+        # count, then `_index` and, per candidate, m - 1, its onset's and its window's end, sum x, n, S_xx, sqrt S_xx
+        self._constants = np.concatenate((
+            (self.sample_hz, self.sigma, self.threshold, size, after.size), self._index, self._m_minus_1,
+            self._onset_end, self._window_end, self._sum_x, self._n, self._s_xx, self._sqrt_s_xx))
+        # the count of samples in the window, z, the alarm, its time, then each sample stored twice, newest at
+        # the lowest slot, so the last `size` are one slice, newest first
+        self._state = np.zeros(G_RING + 2 * size)
         self.reset()
 
     def reset(self) -> None:
-        self._count = 0
-        self.statistic = 0.0
-        self.alarm, self.alarm_time = False, None
+        self._state[:G_RING] = 0.0
+
+    statistic = property(lambda self: float(self._state[G_STATISTIC]), doc="z, 0 until the window is full.")
+    alarm = property(lambda self: bool(self._state[G_ALARM]), doc="Whether z has reached the threshold (latched).")
+
+    @property
+    def alarm_time(self) -> float | None:
+        return float(self._state[G_ALARM_TIME]) if self._state[G_ALARM] else None
 
     def update(self, residual: float, time: float, armed: bool = True) -> bool:
-        slot = (-1 - self._count) % self._size
-        self._ring[slot] = self._ring[slot + self._size] = residual
-        self._count += 1
-        if not armed:                           # the window refills with armed samples only
-            self._count, self.statistic = 0, 0.0
-            return self.alarm
-        if self._count < self._size:
-            self.statistic = 0.0
-            return self.alarm
-        self.statistic = self._z(slot)
-        if not self.alarm and self.statistic >= self.threshold:
-            self.alarm, self.alarm_time = True, float(time)
-        return self.alarm
+        return ramp_step(self._state, self._constants, float(residual), float(time), armed)
 
-    def _z(self, newest: int) -> float:
-        r = self._ring[newest:newest + self._size]                      # newest first
-        # running sums (np.cumsum's, less its wrapper's cost)
-        sum_r, sum_ir = np.add.accumulate(r), np.add.accumulate(self._index * r)
-        onset = self._onset_end
+
+G_COUNT, G_STATISTIC, G_ALARM, G_ALARM_TIME, G_RING = range(5)           # `RampGlr._state`
+G_SAMPLE_HZ, G_SIGMA, G_THRESHOLD, G_SIZE, G_CANDIDATES, G_INDEX = range(6)  # `RampGlr._constants`
+
+
+@njit(cache=True)
+def ramp_step(state, constants, residual, time, armed):  # pragma: no cover (compiled)
+    """`RampGlr.update` in place on its state: the sample into the ring, then z (`_ramp_z`) once the window is
+    full and while armed (else the window refills). Returns the alarm."""
+    size, count = int(constants[G_SIZE]), int(state[G_COUNT])
+    slot = (-1 - count) % size
+    state[G_RING + slot] = state[G_RING + slot + size] = residual
+    state[G_COUNT] = count + 1
+    if not armed:                           # the window refills with armed samples only
+        state[G_COUNT], state[G_STATISTIC] = 0.0, 0.0
+    elif count + 1 < size:
+        state[G_STATISTIC] = 0.0
+    else:
+        state[G_STATISTIC] = _ramp_z(state[G_RING + slot:G_RING + slot + size], constants)
+        if state[G_ALARM] == 0.0 and state[G_STATISTIC] >= constants[G_THRESHOLD]:
+            state[G_ALARM], state[G_ALARM_TIME] = 1.0, time
+    return state[G_ALARM] == 1.0
+
+
+@njit(cache=True)
+def _ramp_z(r, constants):  # pragma: no cover (compiled)
+    """z of the window r (newest first): the running sums of r and index * r (as np.add.accumulate, left to
+    right), then per candidate the least-squares slope a_hat = S_xr / S_xx and z = max (-a_hat) sqrt(S_xx) / sigma
+    as -min(a_hat sqrt(S_xx)) / sigma, each operation as the array form of `RampGlr` had it."""
+    size, candidates = r.size, int(constants[G_CANDIDATES])
+    index = constants[G_INDEX:G_INDEX + size]
+    sum_r, sum_ir = np.empty(size), np.empty(size)
+    sum_r[0], sum_ir[0] = r[0], index[0] * r[0]
+    for i in range(1, size):
+        sum_r[i] = sum_r[i - 1] + r[i]
+        sum_ir[i] = sum_ir[i - 1] + index[i] * r[i]
+    at = G_INDEX + size
+    m_minus_1, onset_end = constants[at:at + candidates], constants[at + candidates:at + 2 * candidates]
+    window_end = constants[at + 2 * candidates:at + 3 * candidates]
+    sum_x, n = constants[at + 3 * candidates:at + 4 * candidates], constants[at + 4 * candidates:at + 5 * candidates]
+    s_xx, sqrt_s_xx = constants[at + 5 * candidates:at + 6 * candidates], constants[at + 6 * candidates:]
+    sample_hz, lowest = constants[G_SAMPLE_HZ], 0.0
+    for j in range(candidates):
+        onset, end = int(onset_end[j]), int(window_end[j])
         # sum over the m newest samples of x_i r_i, x_i = (m - 1 - index_i) / f
-        sum_xr = (self._m_minus_1 * sum_r[onset] - sum_ir[onset]) / self.sample_hz
-        s_xr = sum_xr - self._sum_x * sum_r[self._window_end] / self._n
-        slope = s_xr / self._s_xx
-        # max over onsets of -slope sqrt(S_xx) / sigma, as -min(slope sqrt(S_xx)) / sigma: the same floats
-        return float(-np.minimum.reduce(slope * self._sqrt_s_xx) / self.sigma)
+        sum_xr = (m_minus_1[j] * sum_r[onset] - sum_ir[onset]) / sample_hz
+        s_xr = sum_xr - sum_x[j] * sum_r[end] / n[j]
+        value = s_xr / s_xx[j] * sqrt_s_xx[j]
+        if j == 0 or (lowest == lowest and not value >= lowest):    # np.minimum.reduce: a NaN propagates
+            lowest = value
+    return -lowest / constants[G_SIGMA]

@@ -291,6 +291,7 @@ class PropulsionBayesDetector:
         self.Theta = self.model.Theta
         self._calibration, self._omega_sum, self._level_count = [], 0.0, 0   # rows, sum of omega, level samples
         self._history, self._static, self._record, self._cycles, self._reference = [], None, [], 0, None
+        self._published = self._status = None            # what outputs() and status() return, when built
 
     def _enter(self, phase: str, step: str, time: float) -> None:
         self.phase, self.step_name, self._step_start = phase, step, time
@@ -326,6 +327,7 @@ class PropulsionBayesDetector:
         block = self._averager.add(omega, current, airspeed, rate)
         if block is not None:
             self._fdi_sample(*block)
+            self._published = self._status = None        # outputs and status change only here
 
     def _fdi_sample(self, block: np.ndarray, omega_diff: float, instrument: float) -> None:
         """One FDI sample from a block of (omega, V, I_e) rows: y and C of eq. (9)-(11) in integral form."""
@@ -484,18 +486,26 @@ class PropulsionBayesDetector:
 
     # ------------------------------------------------------------------ output
     def outputs(self) -> dict:
-        estimate = [kf.x for kf in self.filters] if self.filters else list(self.x_star)
-        return {"p_fault_detect": np.array([bf.probabilities[1] for bf in self.detect_filters]),
-                "p_isolate": self.isolate_filter.probabilities,
-                "estimate": np.clip(estimate, -1e3, 1e3),
-                "airspeed_request": np.array([self.airspeed_request]),
-                "phase": np.array([float(PHASES.index(self.phase))])}
+        """The published estimates. They change only at an FDI sample: built once after each, then one copy per
+        call (five views of it)."""
+        if self._published is None:
+            estimate = [kf.x for kf in self.filters] if self.filters else list(self.x_star)
+            self._published = np.concatenate((
+                np.array([bf.probabilities[1] for bf in self.detect_filters]), self.isolate_filter.probabilities,
+                np.clip(estimate, -1e3, 1e3), (self.airspeed_request, float(PHASES.index(self.phase)))))
+        published = self._published.copy()
+        return {"p_fault_detect": published[0:3], "p_isolate": published[3:7], "estimate": published[7:10],
+                "airspeed_request": published[10:11], "phase": published[11:12]}
 
     def status(self) -> dict:
-        return {**self._latch.status(), "phase": self.phase, "step": self.step_name,
-                "hypothesis": None if self.hypothesis is None else MODES[self.hypothesis],
-                "detections": self.detections, "x_star": self.x_star.tolist(), "R": self.R,
-                "airspeed_request": self.airspeed_request}
+        """The status. It changes only at an FDI sample: built once after each, then a new dict per call (its
+        x_star list is built anew after each change and never changed in place)."""
+        if self._status is None:
+            self._status = {**self._latch.status(), "phase": self.phase, "step": self.step_name,
+                            "hypothesis": None if self.hypothesis is None else MODES[self.hypothesis],
+                            "detections": self.detections, "x_star": self.x_star.tolist(), "R": self.R,
+                            "airspeed_request": self.airspeed_request}
+        return dict(self._status)
 
 
 class PropulsionBayesWrapper(DetectorWrapper):

@@ -24,16 +24,22 @@ filtered speed's backward difference. A reading stuck high is not covered (the m
 
 A zeroed reading leaves a widened bound of 2 I_0, far below a cruise current. The allowance and the sizes of the
 excess on recorded flights: docs/measurements.md, 'Tuning record: fdd/rpm_current.py'.
+
+A check's sample is compiled (numba: `check_step`, on its state and constants packed in two arrays, which the
+air-data EKF's own compiled sample step also runs) with the operations and their order of the plain-Python check
+it replaced, so `excess` and `holding` keep their bits.
 """
 from __future__ import annotations
 
 import math
 from typing import NamedTuple
 
+import numpy as np
+from numba import njit
 from scipy import signal
 
-from ..models.pusher import TWO_PI
-from .base import Biquad
+from ..models.pusher import TWO_PI, aero_torque, pusher_constants
+from .base import biquad_constants, biquad_scalar
 from .pitot_detection import ThresholdCriterion
 from .propulsion_bayes import PropulsionModel
 
@@ -65,6 +71,16 @@ class CurrentCheck(NamedTuple):
 RPM_CURRENT_CHECK = CurrentCheck(1.0, 2.0, 0.2)
 
 
+#: `RpmCurrentCheck._state`: the two low-passes' memories (speed, current), whether they have started, the last
+#: filtered speed and whether there is one, `excess`, `holding` (1.0 true) and the criterion's count.
+SPEED_MEMORY, CURRENT_MEMORY, FILTERS_STARTED, LAST_SPEED, HAS_LAST_SPEED = slice(0, 2), slice(2, 4), 4, 5, 6
+EXCESS, HOLDING, COUNT, CHECK_STATE_SIZE = 7, 8, 9, 10
+#: `RpmCurrentCheck._constants`: the low-pass (`biquad_constants`), sample_hz, c_v*, I_0*, Theta, k_e, the
+#: allowance, the criterion's threshold and samples, then the pusher's constants (`pusher_constants`).
+CHECK_LOWPASS, SAMPLE_HZ, C_V, I_0, THETA, K_E, ALLOWANCE, THRESHOLD, SAMPLES, PUSHER = (
+    slice(0, 8), 8, 9, 10, 11, 12, 13, 14, 15, slice(16, None))
+
+
 class RpmCurrentCheck:
     """`update(speed, current)` at `sample_hz` returns whether the current has stayed above what the read speed
     can draw (`excess` >= threshold) for `hold` s; `excess` (A) is published for the threshold tool."""
@@ -79,31 +95,58 @@ class RpmCurrentCheck:
         self.sample_hz, self.allowance = float(sample_hz), float(allowance)
         self.criterion = ThresholdCriterion(threshold, hold, sample_hz, sign=1)
         _, self._c_v, self._i_0 = self.model.x_star.tolist()
-        # one scalar filter per signal: the floats of the two-channel filter, without numpy's per-call cost
-        ba = signal.butter(2, cutoff, btype="low", fs=sample_hz)
-        self._speed_filter, self._current_filter = Biquad(*ba), Biquad(*ba)
+        m = self.model
+        self._constants = np.concatenate((
+            biquad_constants(*signal.butter(2, cutoff, btype="low", fs=sample_hz)),
+            (self.sample_hz, self._c_v, self._i_0, m.Theta, m.k_e, self.allowance, self.criterion.threshold,
+             self.criterion.samples), pusher_constants(m.params)))
+        self._state = np.zeros(CHECK_STATE_SIZE)
         self.reset()
 
     def reset(self) -> None:
-        self.criterion.reset()
-        self._speed_filter.reset()
-        self._current_filter.reset()
-        self._last_speed = None
-        self.excess, self.holding = 0.0, False
+        self._state[:] = 0.0
+
+    @property
+    def excess(self) -> float:
+        """The current above the widened bound, A (the last sample's)."""
+        return float(self._state[EXCESS])
+
+    @property
+    def holding(self) -> bool:
+        """Whether the excess has held the threshold for `hold` s."""
+        return bool(self._state[HOLDING])
 
     def update(self, speed: float, current: float) -> bool:
-        if not (math.isfinite(speed) and math.isfinite(current)):
+        if not check_step(self._state, self._constants, float(speed), float(current)):
             raise ValueError(f"rpm current check: pusher_speed {speed!r} and pusher_current {current!r} must be finite")
-        w, current = self._speed_filter(float(speed)), self._current_filter(float(current))
-        w_dot = 0.0 if self._last_speed is None else (w - self._last_speed) * self.sample_hz
-        self._last_speed = w
-        self.excess = current - self._bound(max(w, 0.0), w_dot)
-        self.holding = self.criterion(self.excess)
-        return self.holding
+        return bool(self._state[HOLDING])
 
-    def _bound(self, w: float, w_dot: float) -> float:
-        """I_max(w) (003 eq. 1 at V = 0, theta_1 = 1) widened by the allowance."""
-        m, c_v, i_0 = self.model, self._c_v, self._i_0
-        steady = c_v * w + float(m.nominal_torque(w, 0.0))
-        inertia = m.Theta * w_dot
-        return i_0 + (steady + inertia) / m.k_e + self.allowance * (i_0 + (steady + abs(inertia)) / m.k_e)
+
+@njit(cache=True)
+def check_step(state, constants, speed, current):  # pragma: no cover (compiled)
+    """One sample of `RpmCurrentCheck` in place on `state`: both readings low-passed (2nd-order Butterworth, from
+    steady state on the first sample), dw/dt the filtered speed's backward difference, excess = I_e - bound
+    (`_bound`), then the criterion (one-sided, held `samples` samples). False (state untouched) if a reading is
+    not finite."""
+    if not (math.isfinite(speed) and math.isfinite(current)):
+        return False
+    first = state[FILTERS_STARTED] == 0.0
+    w = biquad_scalar(constants, state, SPEED_MEMORY.start, speed, first)
+    current = biquad_scalar(constants, state, CURRENT_MEMORY.start, current, first)
+    state[FILTERS_STARTED] = 1.0
+    w_dot = 0.0 if state[HAS_LAST_SPEED] == 0.0 else (w - state[LAST_SPEED]) * constants[SAMPLE_HZ]
+    state[LAST_SPEED], state[HAS_LAST_SPEED] = w, 1.0
+    excess = current - _bound(constants, 0.0 if w < 0.0 else w, w_dot)       # max(w, 0.0), as Python's
+    state[EXCESS] = excess
+    state[COUNT] = state[COUNT] + 1.0 if excess >= constants[THRESHOLD] else 0.0  # sign +1: the level is excess
+    state[HOLDING] = state[COUNT] >= constants[SAMPLES]
+    return True
+
+
+@njit(cache=True)
+def _bound(constants, w, w_dot):  # pragma: no cover (compiled)
+    """I_max(w) (003 eq. 1 at V = 0, theta_1 = 1) widened by the allowance."""
+    i_0, k_e = constants[I_0], constants[K_E]
+    steady = constants[C_V] * w + aero_torque(constants[PUSHER], 1.0, w / TWO_PI, 0.0)    # 003 eq. (2)-(4)
+    inertia = constants[THETA] * w_dot
+    return i_0 + (steady + inertia) / k_e + constants[ALLOWANCE] * (i_0 + (steady + abs(inertia)) / k_e)
