@@ -29,7 +29,7 @@ def test_perf_json_names_its_fields(capsys):
                            "detector_us_per_step", "detector_budget_us"}
     assert set(report["machine"]) == {"cpu", "cores", "load_average", "python", "numpy", "pybullet", "gymnasium",
                                       "numba"}
-    assert set(report["vector"]["steps_per_s"]) == {"one", "sync", "async", "parallel"}
+    assert set(report["vector"]["steps_per_s"]) == {"one", "sync", "async", "parallel", "independent"}
     assert all(rate > 0 for rate in report["vector"]["steps_per_s"].values())
     assert report["detector_budget_us"] == DETECTOR_BUDGET_US == 18.0
     assert set(report["detector_us_per_update"]) == set(report["detector_us_per_step"]) == set(DETECTORS)

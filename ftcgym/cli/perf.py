@@ -19,6 +19,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import multiprocessing as mp
 import os
 import resource
 import time
@@ -201,8 +202,10 @@ VECTOR_KWARGS = {"observation_format": "flat", "info_level": "none"}
 def vector_scaling(steps: int, seed: int, num_envs: int = 2, rounds: int = 8) -> dict:
     """Aggregate env steps/s of `gym.make_vec` (sync, async and the parallel vector entry point, `num_envs` envs,
     copy=False) and of one env, random actions, on Quadrotor-v0 with `VECTOR_KWARGS` (resets inside, as
-    autoreset does them). The four take turns in `rounds` rounds, so a change in the machine's speed hits all
-    alike: rates are medians over the rounds, ratios medians of the ratios within a round."""
+    autoreset does them); and of `num_envs` independent processes each stepping its own env at once, with no
+    hand-over (`independent`): the machine's own ceiling for any vector env. The five take turns in `rounds`
+    rounds, so a change in the machine's speed hits all alike: rates are medians over the rounds, ratios medians
+    of the ratios within a round."""
     rng = np.random.default_rng(seed)
     chunk = max(steps // rounds // num_envs, 1)
     actions = rng.uniform(0.0, 1.0, (chunk, num_envs, 4)).astype(np.float32)
@@ -216,12 +219,22 @@ def vector_scaling(steps: int, seed: int, num_envs: int = 2, rounds: int = 8) ->
         vector_env.reset(seed=seed)
 
     def one_env() -> float:
-        start = time.perf_counter()
-        for action in actions.reshape(-1, 4):
-            _, _, terminated, truncated, _ = one.step(action)
-            if terminated or truncated:
-                one.reset()
-        return actions.shape[0] * num_envs / (time.perf_counter() - start)
+        return actions.shape[0] * num_envs / _seconds_stepping(one, actions.reshape(-1, 4))
+
+    ctx = mp.get_context()
+    pipes = [ctx.Pipe() for _ in range(num_envs - 1)]
+    others = [ctx.Process(target=_independent_env, args=(child, seed + k + 1, actions[:, k + 1]), daemon=True)
+              for k, (_, child) in enumerate(pipes)]
+    for process in others:
+        process.start()
+    for parent, _ in pipes:
+        parent.recv()                          # built and ready
+
+    def independent() -> float:
+        for parent, _ in pipes:
+            parent.send(True)
+        seconds = [_seconds_stepping(one, actions[:, 0])] + [parent.recv() for parent, _ in pipes]
+        return actions.shape[0] * num_envs / max(seconds)
 
     def vector(mode: str) -> float:
         start = time.perf_counter()
@@ -229,18 +242,43 @@ def vector_scaling(steps: int, seed: int, num_envs: int = 2, rounds: int = 8) ->
             envs[mode].step(batch)
         return actions.shape[0] * num_envs / (time.perf_counter() - start)
 
-    samples = {mode: [] for mode in ("one", *envs)}
+    samples = {mode: [] for mode in ("one", *envs, "independent")}
     for _ in range(rounds):
         samples["one"].append(one_env())
         for mode in envs:
             samples[mode].append(vector(mode))
+        samples["independent"].append(independent())
+    for parent, _ in pipes:
+        parent.send(False)
+    for process in others:
+        process.join(timeout=10.0)
     one.close()
     for vector_env in envs.values():
         vector_env.close()
-    ratios = {mode: float(np.median(np.array(samples[mode]) / samples["one"])) for mode in envs}
+    ratios = {mode: float(np.median(np.array(samples[mode]) / samples["one"])) for mode in (*envs, "independent")}
     return {"num_envs": num_envs, "env_kwargs": VECTOR_KWARGS, "rounds": rounds,
             "steps_per_s": {mode: float(np.median(rates)) for mode, rates in samples.items()},
             "ratio_to_one_env": ratios}
+
+
+def _seconds_stepping(env, actions) -> float:
+    """Wall seconds `env` takes to step `actions`, resetting where an episode ends."""
+    start = time.perf_counter()
+    for action in actions:
+        _, _, terminated, truncated, _ = env.step(action)
+        if terminated or truncated:
+            env.reset()
+    return time.perf_counter() - start
+
+
+def _independent_env(pipe, seed: int, actions) -> None:
+    """A process of `vector_scaling`'s `independent` row: its own env, stepping `actions` whenever told to."""
+    env = gym.make(QUADROTOR, **VECTOR_KWARGS)
+    env.reset(seed=seed)
+    pipe.send(None)
+    while pipe.recv():
+        pipe.send(_seconds_stepping(env, actions))
+    env.close()
 
 
 def machine() -> dict:
@@ -308,5 +346,6 @@ def run(args, argv: list[str] | None = None) -> int:
           f"{VECTOR_KWARGS}, aggregate env steps/s (median of {vector['rounds']} interleaved rounds):\n"
           f"  one env {rates['one']:.0f}, sync {rates['sync']:.0f} ({ratios['sync']:.2f}x), async "
           f"{rates['async']:.0f} ({ratios['async']:.2f}x), parallel (vector entry point) {rates['parallel']:.0f} "
-          f"({ratios['parallel']:.2f}x)")
+          f"({ratios['parallel']:.2f}x); {vector['num_envs']} independent processes, one env each, no hand-over "
+          f"(the machine's ceiling) {rates['independent']:.0f} ({ratios['independent']:.2f}x)")
     return 0
