@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 from scipy.linalg import expm
 
 from ftcgym.agents import make_policy
-from ftcgym.fdd.aekf import N_X, AugmentedEkfDetector, aekf_wrapper
+from ftcgym.fdd.aekf import N_X, AugmentedEkfDetector, _gain, aekf_wrapper
 from ftcgym.fdd.base import Detector
 from ftcgym.models.quadrotor import BEBOP2
 
@@ -121,6 +121,36 @@ def test_measurement_update_matches_the_textbook_kalman_step():
         K = P0 @ H.T @ np.linalg.inv(H @ P0 @ H.T + R)
         np.testing.assert_allclose(det.x, x0 + K @ (y - H @ x0), rtol=0, atol=1e-12)
         np.testing.assert_allclose(det.P, (np.eye(N_X) - K @ H) @ P0, rtol=0, atol=1e-12)
+
+
+def test_prediction_matches_the_dense_products_of_eq_7():
+    """`_predict` multiplies only Phi's rows that differ from I's: the result must be eq. (6)-(7) with the dense
+    Phi = I + F dt + (F dt)^2 / 2, to rounding."""
+    rng = np.random.default_rng(3)
+    for _ in range(3):
+        det = _detector()
+        x0, P0 = rng.normal(size=N_X) * 0.2, _spd(rng, N_X)
+        Omega0, Omega = rng.uniform(400.0, 1100.0, 4), rng.uniform(400.0, 1100.0, 4)
+        det.x, det.P, det._Omega = x0.copy(), P0.copy(), Omega0
+        f, F = det.dynamics(x0, Omega, (Omega - Omega0) / det.dt)
+        Fdt = F * det.dt
+        Phi = np.eye(N_X) + Fdt + 0.5 * Fdt @ Fdt
+        det.predict(Omega)
+        expected = x0 + det.dt * f + 0.5 * det.dt * Fdt @ f
+        expected[8] = (expected[8] + np.pi) % (2 * np.pi) - np.pi
+        np.testing.assert_allclose(det.x, expected, rtol=0, atol=1e-14)
+        np.testing.assert_allclose(det.P, Phi @ P0 @ Phi.T + det.Q, rtol=0, atol=1e-12 * np.abs(P0).max())
+        assert np.array_equal(det.P, det.P.T)
+
+
+def test_gain_solves_the_innovation_covariance_and_falls_back_to_lu_when_it_is_indefinite():
+    rng = np.random.default_rng(4)
+    for m in (6, 12):
+        S, B = _spd(rng, m), rng.normal(size=(m, N_X))
+        np.testing.assert_allclose(S @ _gain(S, B), B, rtol=0, atol=1e-10 * np.abs(B).max())
+    indefinite = np.diag([1.0, -2.0, 3.0])                   # Cholesky fails at the second pivot
+    B = rng.normal(size=(3, 5))
+    np.testing.assert_allclose(_gain(indefinite, B), np.linalg.solve(indefinite, B), rtol=1e-15, atol=0)
 
 
 @settings(max_examples=25, deadline=None)

@@ -42,10 +42,12 @@ Where ftcgym departs from or adapts the paper (also noted at the code):
 - The LOE estimates are not clipped to [0, 1]: clipping would bias them, and 002 values their unbiasedness.
 
 Each `update` is one compiled call (numba: `_step`, on the filter's state and constants packed in two arrays,
-as numba's call cost grows with each argument), the detection and the outputs included. It keeps the numpy
-operations of the plain-numpy filter it replaced, in the same order and array layouts (numba's `dot` and `solve`
-make the BLAS and LAPACK calls numpy's make), except where H, a selection, makes a product a pick of entries with
-the same bits (`_correct`); so the estimates keep their bits.
+as numba's call cost grows with each argument), the detection and the outputs included. The products use the
+filter's structure: the random walks' rows of F are zero, so only the first N_MOVING rows of Phi are multiplied
+(`_predict`); H selects states, so H x, H P and H P H^T are picks of entries (`_correct`); S is symmetric positive
+definite, so the gain comes from a Cholesky factor (`_gain`). The rest are BLAS products. This equals the dense
+eq. (7) and (18) up to rounding: against the dense filter, the LOE estimates moved by at most 2.3e-14 and the
+alarm times not at all (docs/measurements.md, 'Step cost: aekf by its structure').
 """
 from __future__ import annotations
 
@@ -59,7 +61,6 @@ from ..models.constants import GRAVITY
 from ..models.geometry import euler_from_quat, rotation_from_euler, skew_matrix
 from ..models.quadrotor import YAW_SIGNS, rotor_wrench_matrix
 from ..settings import updated
-from . import kalman
 from .base import AlarmLatch
 from .wrapper import DetectorWrapper
 
@@ -67,7 +68,8 @@ N_X = 21
 POS, VEL, ETA, OMEGA, BIAS, LOE, DIST = (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15),
                                          slice(15, 19), slice(19, 21))
 PSI, BIAS_0, LOE_0 = 8, 12, 15            # the yaw state, the first bias and LOE states
-_GRAVITY = np.array((0.0, 0.0, GRAVITY))
+#: the states with dynamics; the rest (biases, LOE, d) are random walks, whose rows of F are zero
+N_MOVING = 12
 _NO_COMMAND = np.empty(0)
 #: The detector's state (`AugmentedEkfDetector._state`): x, P (row-major), the previous sample's rotor speeds and
 #: held position and velocity, the innovation accumulators of eq. (42) (acc, acc_w, z), what `outputs` publishes
@@ -299,9 +301,12 @@ class AugmentedEkfDetector:
         _publish(self._state)
 
     def dynamics(self, x: np.ndarray, Omega: np.ndarray, Omega_dot: np.ndarray):
-        """f(x, u) of eq. (43) and its Jacobian F (eq. 9) (`_dynamics`)."""
-        return _dynamics(np.asarray(x, dtype=np.float64), np.asarray(Omega, dtype=np.float64),
-                         np.asarray(Omega_dot, dtype=np.float64), self._model)
+        """f(x, u) of eq. (43) and its Jacobian F (eq. 9), N_X x N_X (`_dynamics`, which computes its nonzero rows)."""
+        f, F_moving = _dynamics(np.asarray(x, dtype=np.float64), np.asarray(Omega, dtype=np.float64),
+                                np.asarray(Omega_dot, dtype=np.float64), self._model)
+        F = np.zeros((N_X, N_X))
+        F[:N_MOVING] = F_moving
+        return f, F
 
 
 def aekf_wrapper(env, **kwargs) -> DetectorWrapper:
@@ -433,13 +438,50 @@ def _measurement(position, velocity, attitude, gyro, fresh):  # pragma: no cover
 
 @njit(cache=True)
 def _predict(x, P, Q, Omega, Omega_prev, dt, c):  # pragma: no cover (compiled)
-    """Eq. (6)-(12), in place: x(k+1|k) by a second-order Taylor step, P(k+1|k) = Phi P Phi^T + Q_d."""
-    f, F = _dynamics(x, Omega, (Omega - Omega_prev) / dt, c)   # F at x(k|k), eq. (9)
+    """Eq. (6)-(12), in place: x(k+1|k) by a second-order Taylor step, P(k+1|k) = Phi P Phi^T + Q_d.
+
+    F's rows from N_MOVING on are zero (the random walks of eq. 43), so Phi = [T; 0 I] with T its first N_MOVING
+    rows, and Phi P Phi^T = [T P T^T, (T P)_r; (T P)_r^T, P_rr] (r: the random walks' states): only T P and
+    T P T^T are products, and only T P T^T is symmetrised, the other blocks being mirrored exactly."""
+    f, F = _dynamics(x, Omega, (Omega - Omega_prev) / dt, c)   # F at x(k|k), eq. (9): its first N_MOVING rows
     Fdt = F * dt
-    x[:] = x + dt * f + (0.5 * dt) * np.dot(Fdt, f)           # eq. (6)
+    for i in range(N_MOVING):                                 # eq. (6): x + dt f + (dt / 2) F dt f
+        Fdt_f = 0.0
+        for k in range(N_X):
+            Fdt_f += Fdt[i, k] * f[k]
+        x[i] = x[i] + dt * f[i] + (0.5 * dt) * Fdt_f
     x[PSI] = _wrap(x[PSI])
-    Phi = np.eye(N_X) + Fdt + 0.5 * np.dot(Fdt, Fdt)      # eq. (8), to second order
-    P[:] = kalman.predict(P, Q, Phi)                          # eq. (7)
+    T = _sparse_times(Fdt, Fdt)                               # eq. (8), to second order: I + F dt + (F dt)^2 / 2
+    for i in range(N_MOVING):
+        for j in range(N_X):
+            T[i, j] = (i == j) + Fdt[i, j] + 0.5 * T[i, j]
+    TP = np.dot(T, P)
+    TPT = np.dot(TP, T.T)
+    n = N_MOVING
+    for i in range(N_X):                                      # eq. (7)
+        for j in range(i + 1):
+            if i < n:
+                value = 0.5 * (TPT[i, j] + TPT[j, i])
+            elif j < n:
+                value = TP[j, i]
+            else:
+                value = P[i, j]
+            P[i, j] = value + Q[i, j]
+            P[j, i] = value + Q[j, i]
+
+
+@njit(cache=True)
+def _sparse_times(A, B):  # pragma: no cover (compiled)
+    """A B for an A (N_MOVING x N_X) with many zeros and B's rows from N_MOVING on zero: sums of B's rows over
+    A's nonzero entries."""
+    out = np.zeros(A.shape)
+    for i in range(A.shape[0]):
+        for k in range(N_MOVING):
+            a = A[i, k]
+            if a != 0.0:
+                for j in range(B.shape[1]):
+                    out[i, j] += a * B[k, j]
+    return out
 
 
 @njit(cache=True)
@@ -447,46 +489,78 @@ def _correct(x, P, y, r):  # pragma: no cover (compiled)
     """Eq. (13)-(18) for y = H x + v (H constant, so eq. 15 is exact; R = diag(r)), in place; returns the
     innovation gamma (eq. 17) and its covariance S.
 
-    `kalman.update`'s operations with H's structure used: H selects (and, for the gyro, adds the rate and bias
-    states: MEASURED), so H x, P H^T, H P H^T and K H pick and add entries instead of dense products. Each of those
-    sums has at most two nonzero terms, and BLAS adds them to an accumulator starting at 0, so picking them
-    (from 0.0, `_measured`) gives the same bits; K R with R diagonal is one product per entry. The solve and the
-    dense products of the Joseph form (eq. 18) are the same numpy calls on the same arrays."""
+    H selects states (and, for the gyro, adds the rate and bias states: MEASURED), so H x, P H^T, H P H^T and K H
+    pick and add entries instead of dense products. The gain solves S K^T = H P (Cholesky, `_gain`). The Joseph
+    form of eq. (18) is expanded with H's structure: with A = I - K H, A P = P - K (H P), and
+    A P A^T + K R K^T = A P + (K R - A P H^T) K^T."""
     m = y.size
     gamma = np.empty(m)
     for j in range(m):
         gamma[j] = y[j] - _measured(x, j)                     # eq. (17)
     gamma[2] = _wrap(gamma[2])                                # yaw innovation across +-pi
-    PHt, S = np.empty((N_X, m)), np.empty((m, m))
-    for i in range(N_X):
-        for j in range(m):
-            PHt[i, j] = _measured(P[i], j)
+    HP = np.empty((m, N_X))                                   # H P = (P H^T)^T, P symmetric
+    for j in range(m):
+        for k in range(N_X):
+            HP[j, k] = _measured(P[:, k], j)
+    S = np.empty((m, m))
     for i in range(m):
         for j in range(m):
-            S[i, j] = _measured(PHt[:, j], i) + r[i] * (i == j)    # eq. (14)
-    K = np.linalg.solve(S, PHt.T).T                          # eq. (15)
-    A = np.eye(N_X)                                           # I - K H
-    for j in range(m):
-        for i in range(N_X):
-            A[i, MEASURED[j]] -= K[i, j]
-            if 3 <= j < 6:
-                A[i, BIAS_0 + j - 3] -= K[i, j]
-    KR = np.empty((N_X, m))
+            S[i, j] = _measured(HP[j], i) + r[i] * (i == j)    # eq. (14)
+    Kt = _gain(S, HP)                                         # eq. (15): K^T = S^-1 H P
+    AP = P - np.dot(np.ascontiguousarray(Kt.T), HP)
+    C = np.empty((N_X, m))                                    # K R - A P H^T
     for i in range(N_X):
         for j in range(m):
-            KR[i, j] = K[i, j] * r[j]
-    P_new = np.dot(np.dot(A, P), A.T) + np.dot(KR, K.T)      # eq. (18)
-    x[:] = x + np.dot(np.asfortranarray(K), gamma)           # eq. (16)
+            C[i, j] = Kt[j, i] * r[j] - _measured(AP[i], j)
+    P_new = AP + np.dot(C, Kt)                                # eq. (18)
+    for j in range(m):
+        _add_row(x, gamma[j], Kt[j])                          # eq. (16)
     P[:] = 0.5 * (P_new + P_new.T)
     x[PSI] = _wrap(x[PSI])
     return gamma, S
 
 
 @njit(cache=True)
+def _gain(S, B):  # pragma: no cover (compiled)
+    """S^-1 B for the innovation covariance S (symmetric, positive definite: H P H^T + R with R > 0), by Cholesky
+    S = L L^T and two triangular solves, row operations on B's rows. Falls back to LU if rounding has made S
+    indefinite."""
+    m = S.shape[0]
+    L = np.zeros((m, m))
+    for j in range(m):
+        for i in range(j, m):
+            s = S[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            if i == j:
+                if not s > 0.0:
+                    return np.ascontiguousarray(np.linalg.solve(S, B))
+                L[j, j] = math.sqrt(s)
+            else:
+                L[i, j] = s / L[j, j]
+    X = B.copy()
+    for i in range(m):                                        # L Z = B
+        for j in range(i):
+            _add_row(X[i], -L[i, j], X[j])
+        X[i] /= L[i, i]
+    for i in range(m - 1, -1, -1):                            # L^T X = Z
+        for j in range(i + 1, m):
+            _add_row(X[i], -L[j, i], X[j])
+        X[i] /= L[i, i]
+    return X
+
+
+@njit(cache=True)
+def _add_row(out, a, row):  # pragma: no cover (compiled)
+    """out += a row, in place, without a temporary."""
+    for j in range(out.size):
+        out[j] += a * row[j]
+
+
+@njit(cache=True)
 def _measured(v, j):  # pragma: no cover (compiled)
-    """(H v)_j for H of y's row j: the state it reads, plus the bias for the gyro rows (0.0 + v_i: as the BLAS
-    sum starting at 0, so -0.0 reads +0.0)."""
-    value = 0.0 + v[MEASURED[j]]
+    """(H v)_j for H of y's row j: the state it reads, plus the bias for the gyro rows."""
+    value = v[MEASURED[j]]
     if 3 <= j < 6:
         value += v[BIAS_0 + j - 3]
     return value
@@ -513,46 +587,68 @@ def _accumulate(acc, acc_w, z, gamma, S, forget):  # pragma: no cover (compiled)
 
 @njit(cache=True)
 def _dynamics(x, Omega, Omega_dot, c):  # pragma: no cover (compiled)
-    """f(x, u) of eq. (43) and its Jacobian F (eq. 9); inputs the rotor speeds Omega and their rate. The biases,
-    the LOE and d are random walks (eq. 43): their rows are zero."""
-    f, F = np.zeros(N_X), np.zeros((N_X, N_X))
-    Omega2 = Omega * Omega
+    """f(x, u) of eq. (43) and the first N_MOVING rows of its Jacobian F (eq. 9); inputs the rotor speeds Omega and
+    their rate. The biases, the LOE and d are random walks (eq. 43): their rows of F are zero."""
+    f, F = np.zeros(N_X), np.zeros((N_MOVING, N_X))
     k = 1.0 - x[LOE]                                          # effectiveness: eq. (40)'s (1 - l_i) factor
     phi, theta, psi, p, q, r = x[6], x[7], x[8], x[9], x[10], x[11]
-    f[POS], F[POS, VEL] = x[VEL], np.eye(3)
-    f[VEL], F[VEL, VEL], F[VEL, ETA], F[VEL, LOE] = _translation(x[VEL], phi, theta, psi, k, Omega, Omega2, c)
-    f[VEL][:2] += x[DIST]
-    F[VEL, DIST] = np.eye(3, 2)
-    f[ETA], F[ETA, ETA], F[ETA, OMEGA] = _euler_kinematics(phi, theta, p, q, r)
-    f[OMEGA], F[OMEGA, OMEGA] = _rotational(p, q, r, k * Omega2, Omega, Omega_dot, c)
-    F[OMEGA, LOE] = c[MOMENTS_OVER_J].reshape(3, 4) * Omega2   # dM/dl_i = -A_i Omega_i^2
+    for i in range(3):
+        f[i], F[i, 3 + i] = x[3 + i], 1.0
+    _translation(f, F, x[VEL], phi, theta, psi, k, Omega, c)
+    f[3] += x[19]
+    f[4] += x[20]
+    F[3, 19] = F[4, 20] = 1.0
+    _euler_kinematics(f, F, phi, theta, p, q, r)
+    _rotational(f, F, p, q, r, k, Omega, Omega_dot, c)
     return f, F
 
 
 @njit(cache=True)
-def _translation(v, phi, theta, psi, k, Omega, Omega2, c):  # pragma: no cover (compiled)
-    """Eq. (22)-(24) in NED: m v_dot = m g e3 + R F_b; F_b = thrust and linear body and rotor drag.
-    Returns v_dot and its derivatives by v, eta and l."""
+def _translation(f, F, v, phi, theta, psi, k, Omega, c):  # pragma: no cover (compiled)
+    """Eq. (22)-(24) in NED: m v_dot = m g e3 + R F_b; F_b = thrust and linear body and rotor drag. Writes v_dot
+    and its derivatives by v, eta and l into f and F."""
     R = rotation_from_euler(phi, theta, psi)
-    mass, c_T, k_d, d = c[MASS], c[C_T], c[K_D], c[BODY_DRAG]
-    a_b = np.dot(v, R)                                        # R^T v, body airspeed (no wind is known)
-    rotor_drag = k_d * np.dot(k, Omega)
-    drag = -np.array((d[0] + rotor_drag, d[1] + rotor_drag, d[2]))
+    mass, c_T, k_d = c[MASS], c[C_T], c[K_D]
+    d = c[BODY_DRAG]
+    rotor_drag, thrust = 0.0, 0.0
+    for j in range(4):
+        rotor_drag += k[j] * Omega[j]
+        thrust += k[j] * (Omega[j] * Omega[j])
+    drag = np.array((-(d[0] + k_d * rotor_drag), -(d[1] + k_d * rotor_drag), -d[2]))
+    a_b = np.empty(3)                                         # R^T v, body airspeed (no wind is known)
+    for j in range(3):
+        a_b[j] = R[0, j] * v[0] + R[1, j] * v[1] + R[2, j] * v[2]
     F_b = drag * a_b
-    F_b[2] -= c_T * np.dot(k, Omega2)
-    RF = np.dot(R, F_b)
-    RCRt = np.dot(R * drag, R.T)
+    F_b[2] -= c_T * thrust
+    RF = np.empty(3)
+    RCRt = np.empty((3, 3))                                   # d(R F_b)/dv = R diag(drag) R^T
+    for i in range(3):
+        RF[i] = R[i, 0] * F_b[0] + R[i, 1] * F_b[1] + R[i, 2] * F_b[2]
+        f[3 + i] = RF[i] / mass
+        for j in range(3):
+            RCRt[i, j] = R[i, 0] * drag[0] * R[j, 0] + R[i, 1] * drag[1] * R[j, 1] + R[i, 2] * drag[2] * R[j, 2]
+            F[3 + i, 3 + j] = RCRt[i, j] / mass
+        for j in range(4):                                    # d(R F_b)/dl_j = -R dF_b/dk_j
+            F[3 + i, 15 + j] = (R[i, 0] * k_d * a_b[0] * Omega[j] + R[i, 1] * k_d * a_b[1] * Omega[j]
+                                + R[i, 2] * c_T * Omega[j] * Omega[j]) / mass
+    f[5] += GRAVITY
     # d(R u)/d eta_j = n_j x (R u) with n_phi = R e1, n_theta = Rz e2, n_psi = e3 (ZYX), so the eta
     # columns are n_j x RF + RCR^T (v x n_j) = (RCR^T [v]x - [RF]x) n_j.
-    N = np.array(((R[0, 0], -math.sin(psi), 0.0), (R[1, 0], math.cos(psi), 0.0), (R[2, 0], 0.0, 1.0)))
-    dv_deta = np.dot(np.dot(RCRt, skew_matrix(v)) - skew_matrix(RF), N) / mass
-    dFb_dl = np.vstack((k_d * a_b[0] * Omega, k_d * a_b[1] * Omega, c_T * Omega2))
-    return RF / mass + _GRAVITY, RCRt / mass, dv_deta, np.dot(R, dFb_dl) / mass
+    G = -skew_matrix(RF)
+    V = skew_matrix(v)
+    for i in range(3):
+        for j in range(3):
+            G[i, j] += RCRt[i, 0] * V[0, j] + RCRt[i, 1] * V[1, j] + RCRt[i, 2] * V[2, j]
+    N = ((R[0, 0], -math.sin(psi), 0.0), (R[1, 0], math.cos(psi), 0.0), (R[2, 0], 0.0, 1.0))
+    for i in range(3):
+        for j in range(3):
+            F[3 + i, 6 + j] = (G[i, 0] * N[0][j] + G[i, 1] * N[1][j] + G[i, 2] * N[2][j]) / mass
 
 
 @njit(cache=True)
-def _rotational(p, q, r, kOmega2, Omega, Omega_dot, c):  # pragma: no cover (compiled)
-    """Eq. (25)-(27) as Euler's equation J omega_dot = M - omega x J omega, and d(omega_dot)/d omega.
+def _rotational(f, F, p, q, r, k, Omega, Omega_dot, c):  # pragma: no cover (compiled)
+    """Eq. (25)-(27) as Euler's equation J omega_dot = M - omega x J omega; writes omega_dot and its derivatives by
+    omega and l into f and F.
 
     M: rotor thrust and drag moments A (k Omega^2), propeller gyroscopic moment -omega x (0, 0, h),
     the reaction to the propellers' spin-up, linear damping: the simulator's terms (rotors.py).
@@ -560,28 +656,39 @@ def _rotational(p, q, r, kOmega2, Omega, Omega_dot, c):  # pragma: no cover (com
     J, I_p, s = c[INERTIA], c[I_P], c[SIGNS]
     Jx, Jy, Jz = J
     dx, dy, dz = c[ROTATIONAL_DRAG]
-    h = -I_p * np.dot(s, Omega)                               # propellers' angular momentum along body z
-    M = np.dot(c[MOMENTS].reshape(3, 4), kOmega2)
+    A, A_over_J = c[MOMENTS], c[MOMENTS_OVER_J]
+    h, spin_up = 0.0, 0.0
+    M = np.zeros(3)
+    for j in range(4):
+        h -= I_p * s[j] * Omega[j]                            # propellers' angular momentum along body z
+        spin_up += I_p * s[j] * Omega_dot[j]
+        Omega2 = Omega[j] * Omega[j]
+        for i in range(3):
+            M[i] += A[4 * i + j] * (k[j] * Omega2)
+            F[9 + i, 15 + j] = A_over_J[4 * i + j] * Omega2   # dM/dl_j = -A_j Omega_j^2
     M[0] += -dx * p - q * h - q * r * (Jz - Jy)
     M[1] += -dy * q + p * h - p * r * (Jx - Jz)
-    M[2] += -dz * r + I_p * np.dot(s, Omega_dot) - p * q * (Jy - Jx)
-    dw_dw = np.array(((-dx / Jx, (-h - r * (Jz - Jy)) / Jx, -q * (Jz - Jy) / Jx),
-                      ((h - r * (Jx - Jz)) / Jy, -dy / Jy, -p * (Jx - Jz) / Jy),
-                      (-q * (Jy - Jx) / Jz, -p * (Jy - Jx) / Jz, -dz / Jz)))
-    return M / J, dw_dw
+    M[2] += -dz * r + spin_up - p * q * (Jy - Jx)
+    for i in range(3):
+        f[9 + i] = M[i] / J[i]
+    F[9, 9], F[9, 10], F[9, 11] = -dx / Jx, (-h - r * (Jz - Jy)) / Jx, -q * (Jz - Jy) / Jx
+    F[10, 9], F[10, 10], F[10, 11] = (h - r * (Jx - Jz)) / Jy, -dy / Jy, -p * (Jx - Jz) / Jy
+    F[11, 9], F[11, 10], F[11, 11] = -q * (Jy - Jx) / Jz, -p * (Jy - Jx) / Jz, -dz / Jz
 
 
 @njit(cache=True)
-def _euler_kinematics(phi, theta, p, q, r):  # pragma: no cover (compiled)
-    """eta_dot = W omega, d(eta_dot)/d eta and W (ZYX; singular at theta = +-90 deg)."""
+def _euler_kinematics(f, F, phi, theta, p, q, r):  # pragma: no cover (compiled)
+    """eta_dot = W omega (ZYX; singular at theta = +-90 deg); writes it and its derivatives by eta and omega (W)
+    into f and F."""
     cf, sf, ct, tt = math.cos(phi), math.sin(phi), math.cos(theta), math.tan(theta)
     a, b = q * sf + r * cf, q * cf - r * sf
-    eta_dot = np.array((p + a * tt, b, a / ct))
-    d_eta = np.array(((b * tt, a / (ct * ct), 0.0),
-                      (-a, 0.0, 0.0),
-                      (b / ct, a * tt / ct, 0.0)))
-    W = np.array(((1.0, sf * tt, cf * tt), (0.0, cf, -sf), (0.0, sf / ct, cf / ct)))
-    return eta_dot, d_eta, W
+    f[6], f[7], f[8] = p + a * tt, b, a / ct
+    F[6, 6], F[6, 7] = b * tt, a / (ct * ct)
+    F[7, 6] = -a
+    F[8, 6], F[8, 7] = b / ct, a * tt / ct
+    F[6, 9], F[6, 10], F[6, 11] = 1.0, sf * tt, cf * tt
+    F[7, 10], F[7, 11] = cf, -sf
+    F[8, 10], F[8, 11] = sf / ct, cf / ct
 
 
 @njit(cache=True)
