@@ -201,6 +201,27 @@ def test_ax_alarm_isolates_the_rpm_only_with_the_current_against_it():
         det.update({k: v for k, v in hover_readings(det).items() if k != "pusher_current"}, 0.0)
 
 
+def test_readings_as_lists_scalars_or_strided_views_give_the_same_filter():
+    """The env's float64 arrays are gathered by the compiled sample step; lists and scalars (a log's row) go
+    through `_flat`, and strided views (columns of a log's table) through the compiled step too: all alike."""
+    dets = [AirdataEkfDetector(VSQP, 100.0) for _ in range(3)]
+    base = hover_readings(dets[0])
+    table = np.zeros((3, 2))
+    for k in range(600):
+        t = 0.01 * k
+        readings = {**base, "accel": np.array([0.3 * math.sin(t), 0.0, -9.81]),
+                    "position": np.array([0.0, 0.0, 0.0 if t < 0.2 else -5.0]), "pusher_current": np.array([2.0])}
+        table[:, 0] = readings["gyro"] + 0.01 * math.cos(3 * t)
+        strided = {**readings, "gyro": table[:, 0]}             # a column: not contiguous
+        plain = {key: value.tolist() if value.size > 1 else float(value[0]) for key, value in strided.items()}
+        for det, r in zip(dets, (strided, plain, {**strided, "gyro": table[:, 0].copy()})):
+            det.update(r, t)
+    assert dets[0].started and np.linalg.norm(dets[0].x) > 0.0
+    for det in dets[1:]:
+        assert np.array_equal(det.x, dets[0].x) and np.array_equal(det.P, dets[0].P)
+        assert det.status() == dets[0].status()
+
+
 def test_nan_reading_names_its_key():
     det = AirdataEkfDetector(VSQP, 100.0)
     with pytest.raises(ValueError, match="gnss_velocity"):

@@ -77,7 +77,7 @@ from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
+from numba import literal_unroll, njit
 from scipy import signal
 
 from ..models.constants import GRAVITY
@@ -696,12 +696,10 @@ class AirdataEkfDetector:
     def update(self, readings: dict, time: float, command=None) -> None:
         current = self._pusher_current(readings)
         parts = [readings[key] for key in self._keys]
-        if current is not None:
-            parts.append((current,))
         # the sample s of `_ekf_cycle` (the readings of `_keys`, then the pusher current), prefiltered (Sec. 5:
         # inputs and measurements alike), and the current checks, every sample, so their filters run before the
         # EKF starts (each low-passes the raw pusher speed and current itself, so it also runs alone)
-        if not _prepare(_flat(parts), self._run, self._lowpass, self._check_states, self._check_constants):
+        if not self._prepare_sample(parts, current):
             self._reject_non_finite(readings, current, time)
         if self.pitot_key in readings:
             self._pitot = _first(readings[self.pitot_key])
@@ -715,7 +713,24 @@ class AirdataEkfDetector:
             self._ekf(time)
             self._status = None
 
-    def _reject_non_finite(self, readings: dict, current: float | None, time: float) -> None:
+    def _prepare_sample(self, parts: list, current) -> bool:
+        """`_prepare` on the readings `parts` and the pusher current (None where nothing reads it): float64 arrays,
+        as the env gives them, are gathered by the compiled call itself (`_prepare_arrays`), anything else
+        through `_flat`."""
+        states = self._run, self._lowpass, self._check_states, self._check_constants
+        if current is None:
+            current = _NO_READING
+        elif type(current) is not np.ndarray:
+            parts = [*parts, (_first(current),)]
+            return _prepare(_flat(parts), *states)
+        for part in parts:
+            if type(part) is not np.ndarray or part.dtype is not _FLOAT64:
+                if current is not _NO_READING:
+                    parts = [*parts, (_first(current),)]
+                return _prepare(_flat(parts), *states)
+        return _prepare_arrays(*states, *parts, current)
+
+    def _reject_non_finite(self, readings: dict, current, time: float) -> None:
         """Raise the ValueError that names the first reading with a NaN or infinity."""
         keys = self._keys + (("pusher_current",) if self._propulsion is not None else ())
         for key in keys:
@@ -723,9 +738,10 @@ class AirdataEkfDetector:
             if not np.all(np.isfinite(part)):
                 raise ValueError(f"airdata_ekf: reading {key!r} is not finite at t = {time}: {part.tolist()}")
         speed = float(np.asarray(readings["pusher_speed"], dtype=float).reshape(-1)[0])
-        raise ValueError(f"rpm current check: pusher_speed {speed!r} and pusher_current {current!r} must be finite")
+        raise ValueError(f"rpm current check: pusher_speed {speed!r} and pusher_current {_first(current)!r} must be "
+                         f"finite")
 
-    def _pusher_current(self, readings: dict) -> float | None:
+    def _pusher_current(self, readings: dict):
         """The pusher current reading, where the pusher RPM's speed_from_current or a current check needs it."""
         if self._propulsion is None and not self.current_checks:
             return None
@@ -734,7 +750,7 @@ class AirdataEkfDetector:
                     else f"the {next(iter(self.current_checks))} current_check")
             raise ValueError(f"airdata_ekf: reading 'pusher_current' missing; {user} needs it (without it, drop "
                              f"that key from innovation_detectors)")
-        return _first(readings["pusher_current"])
+        return readings["pusher_current"]
 
     def _ekf(self, time: float) -> None:
         """One EKF step and the tests on it, compiled (`_ekf_detect`); on an innovation criterion that fired, the
@@ -993,6 +1009,25 @@ def _prepare(sample, run, lowpass, checks, check_constants):  # pragma: no cover
     return True
 
 
+@njit(cache=True)
+def _prepare_arrays(run, lowpass, checks, check_constants, accel, gyro, attitude, velocity, pusher_speed,
+                    hover_rotor_speed, skew, current):  # pragma: no cover (compiled)
+    """`_prepare` on the sample gathered from the readings (their values in order, then the first value of
+    `current`, if it has one): `_flat`'s sample without numpy's concatenate."""
+    parts = (accel, gyro, attitude, velocity, pusher_speed, hover_rotor_speed, skew)
+    size = 1 if current.size > 0 else 0
+    for part in literal_unroll(parts):                        # the readings' layouts may differ
+        size += part.size
+    sample, i = np.empty(size), 0
+    for part in literal_unroll(parts):
+        for value in part.flat:
+            sample[i] = value
+            i += 1
+    if current.size > 0:
+        sample[i] = current.flat[0]
+    return _prepare(sample, run, lowpass, checks, check_constants)
+
+
 #: `AirdataEkfDetector._detect`: whether the tests are armed, the raw pitot residual, whether an innovation alarm
 #: has latched; then its constants: the detection delay, 1.0 for 001's residual (|V|) and the ramp test's least
 #: forward airspeed
@@ -1073,6 +1108,9 @@ def _pitot_tests(state, residual, time, detect, pitot_states, pitot_constants): 
                residual, time, armed)
     ramp_step(pitot_states[cusum_at:], pitot_constants[ramp_at:], residual, time,
               armed and forward >= detect[RAMP_MIN_AIRSPEED])
+
+
+_NO_READING, _FLOAT64 = np.empty(0), np.dtype(np.float64)
 
 
 def _first(reading) -> float:
