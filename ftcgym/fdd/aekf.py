@@ -541,24 +541,29 @@ def _gain(S, B):  # pragma: no cover (compiled)
                 L[j, j] = math.sqrt(s)
             else:
                 L[i, j] = s / L[j, j]
-    X, n = B.copy(), B.shape[1]                               # row operations, as 2-D loops (row views cost more)
+    X = B.copy()
     for i in range(m):                                        # L Z = B
         for j in range(i):
-            a = L[i, j]
-            for c in range(n):
-                X[i, c] -= a * X[j, c]
-        d = 1.0 / L[i, i]
-        for c in range(n):
-            X[i, c] *= d
+            _subtract_row(X, i, j, L[i, j])
+        _scale_row(X, i, 1.0 / L[i, i])
     for i in range(m - 1, -1, -1):                            # L^T X = Z
         for j in range(i + 1, m):
-            a = L[j, i]
-            for c in range(n):
-                X[i, c] -= a * X[j, c]
-        d = 1.0 / L[i, i]
-        for c in range(n):
-            X[i, c] *= d
+            _subtract_row(X, i, j, L[j, i])
+        _scale_row(X, i, 1.0 / L[i, i])
     return X
+
+
+@njit(cache=True)
+def _subtract_row(X, i, j, a):  # pragma: no cover (compiled)
+    """X[i] -= a X[j], in place, by index (a row view per call costs more than the row's arithmetic)."""
+    for c in range(X.shape[1]):
+        X[i, c] -= a * X[j, c]
+
+
+@njit(cache=True)
+def _scale_row(X, i, d):  # pragma: no cover (compiled)
+    for c in range(X.shape[1]):
+        X[i, c] *= d
 
 
 @njit(cache=True)
