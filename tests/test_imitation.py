@@ -32,8 +32,16 @@ def _fly(env, seed, choose):
 @pytest.mark.parametrize("failed_rotor", [0, 3])
 def test_the_shadow_expert_flies_the_spin_recovery(failed_rotor):
     env = RotorLossRecoveryEnv(expert=True, **FAST_TASK, failed_rotor=failed_rotor)
-    _, labels, info = _fly(env, failed_rotor, lambda obs, info: info["expert_action"])
+    features, labels, info = _fly(env, failed_rotor, lambda obs, info: info["expert_action"])
     assert not info["crashed"] and abs(info["position_error"][2]) < 0.3      # held altitude for 1 s
+    # its guidance: the commanded axis (body frame) leans from the vertical (R^T up = -R^T e_z) as the position
+    # loop brings the drifting vehicle back, by about the bebop2's 30 deg at most (the cap is on the horizontal
+    # acceleration, so a little more while less than the weight is asked); the thrust near the weight once the
+    # spin holds altitude
+    axis, up = features[:, 17:20], -features[:, 3:6]
+    tilt = np.degrees(np.arccos(np.clip(np.sum(axis * up, axis=1), -1, 1)))
+    assert np.allclose(np.linalg.norm(axis, axis=1), 1.0, atol=1e-5) and tilt[0] < 5 and 20 < tilt.max() < 35
+    assert abs(np.median(features[len(features) // 2:, 20])) < 0.3
     assert labels.shape[1] == 4 and np.all(np.abs(labels) <= 1)
     # it idles the isolated (failed) rotor: command 0, action -1; labels and actions are in the canonical
     # order (tasks.rotor_order), where a lost r3 / r4 sits at r1's / r2's place

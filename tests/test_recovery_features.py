@@ -12,22 +12,23 @@ PREFIX = "fdd/loe_kalman/"
 
 
 def _state(rng, isolated):
-    """A random post-alarm observation and detector status."""
+    """A random post-alarm observation, detector status and guidance (commanded axis, thrust share)."""
     obs = {"gyro": rng.normal(0, 5, 3), "attitude": Rotation.random(random_state=rng.integers(1000)).as_quat(),
            "position": rng.normal(0, 3, 3), "velocity": rng.normal(0, 2, 3),
            "reference_position": rng.normal(0, 3, 3), "reference_velocity": rng.normal(0, 2, 3),
            "rotor_speed": rng.uniform(0, OMEGA_MAX, 4), PREFIX + "k_hat": rng.uniform(0, 1.2, 4),
            PREFIX + "k_var": rng.uniform(1e-4, 1e-1, 4), PREFIX + "p_fail": rng.uniform(0, 1, 4)}
-    return obs, {"alarm": True, "isolated": isolated}
+    axis = rng.normal(0, 1, 3)
+    return obs, {"alarm": True, "isolated": isolated}, axis / np.linalg.norm(axis), rng.uniform(0.5, 1.5)
 
 
-def _turned_world(obs, yaw):
-    """The same flight seen with the world turned by `yaw` about the vertical."""
+def _turned_world(obs, axis, yaw):
+    """The same flight and commanded axis seen with the world turned by `yaw` about the vertical."""
     turn = Rotation.from_euler("z", yaw)
     out = dict(obs, attitude=(turn * Rotation.from_quat(obs["attitude"])).as_quat())
     for key in ("position", "velocity", "reference_position", "reference_velocity"):
         out[key] = turn.apply(obs[key])
-    return out
+    return out, turn.apply(axis)
 
 
 def _half_turned_body(obs):
@@ -42,25 +43,38 @@ def _half_turned_body(obs):
 @pytest.mark.parametrize("isolated", [0, 1, 2, 3])
 def test_features_do_not_depend_on_the_heading(isolated):
     rng = np.random.default_rng(isolated)
-    obs, status = _state(rng, isolated)
-    features = recovery_features(obs, status, OMEGA_MAX)
+    obs, status, axis, thrust = _state(rng, isolated)
+    features = recovery_features(obs, status, OMEGA_MAX, axis, thrust)
     assert features.shape == (N_FEATURES,) and features.dtype == np.float32
     for yaw in (0.7, np.pi / 2, -2.5):
-        np.testing.assert_allclose(recovery_features(_turned_world(obs, yaw), status, OMEGA_MAX), features,
+        turned, turned_axis = _turned_world(obs, axis, yaw)
+        np.testing.assert_allclose(recovery_features(turned, status, OMEGA_MAX, turned_axis, thrust), features,
                                    atol=1e-5)
-    # ... but they do see the flight: a position error along the body changes them
+    # ... but they do see the flight and the guidance: a position error, a commanded axis, a thrust
     moved = dict(obs, position=obs["position"] + [1.0, 0.0, 0.0])
-    assert np.abs(recovery_features(moved, status, OMEGA_MAX) - features).max() > 0.1
+    assert np.abs(recovery_features(moved, status, OMEGA_MAX, axis, thrust) - features).max() > 0.1
+    assert np.abs(recovery_features(obs, status, OMEGA_MAX, -axis, thrust) - features).max() > 0.1
+    changed = recovery_features(obs, status, OMEGA_MAX, axis, thrust + 0.2) - features
+    assert np.flatnonzero(changed).tolist() == [20] and changed[20] == pytest.approx(0.2)
 
 
 @pytest.mark.parametrize("isolated", [2, 3])
 def test_a_lost_back_rotor_reads_as_the_front_rotor_half_a_turn_round(isolated):
-    obs, status = _state(np.random.default_rng(10 + isolated), isolated)
+    obs, status, axis, thrust = _state(np.random.default_rng(10 + isolated), isolated)
     twin = _half_turned_body(obs), {"alarm": True, "isolated": isolated - 2}
-    np.testing.assert_allclose(recovery_features(obs, status, OMEGA_MAX), recovery_features(*twin, OMEGA_MAX),
-                               atol=1e-5)
+    features = recovery_features(obs, status, OMEGA_MAX, axis, thrust)
+    np.testing.assert_allclose(features, recovery_features(*twin, OMEGA_MAX, axis, thrust), atol=1e-5)
     # the canonical isolated rotor is r1 or r2, one-hot
-    assert list(recovery_features(obs, status, OMEGA_MAX)[-4:]) == [isolated == 2, isolated == 3, 0, 0]
+    assert list(features[-4:]) == [isolated == 2, isolated == 3, 0, 0]
+
+
+def test_the_guidance_reads_in_the_body_frame():
+    obs, status, _, _ = _state(np.random.default_rng(3), 1)
+    up = np.array([0.0, 0.0, -1.0])
+    features = recovery_features(obs, status, OMEGA_MAX, up, 1.0)
+    # the commanded axis straight up is the body's view of up, the features' vertical (R^T e_z) negated
+    np.testing.assert_allclose(features[17:20], -features[3:6], atol=1e-6)
+    assert features[20] == 0.0
 
 
 def test_rotor_order_is_its_own_inverse():

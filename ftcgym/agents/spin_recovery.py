@@ -123,7 +123,8 @@ class SpinRecoveryController:
     `engage(failed_rotor, obs)` starts it (the policies call it on the alarm); `land()` turns holding the
     reference into a descent and touchdown. `mode`: "standby" (not engaged), "hold", "land", "landed".
     `thrust_axis_reference` (NED unit vector): where the controller wants the thrust axis -z now (see
-    `thrust_axis_reference_for`); `axis_command`: n_des, the world direction it wants to spin about.
+    `thrust_axis_reference_for`); `axis_command`: n_des, the world direction it wants to spin about;
+    `thrust_command`: the collective thrust (N) of the outer loop's vertical balance (the weight before `act`).
     The gains are read when the controller is built (the inner loop's when it engages a rotor), except
     `axis_slew_rate_deg` and the landing speeds, read at each step. The step's arithmetic is compiled
     (`_axis_demand`, `_inner_step`; numba) in the order of the numpy version it replaced, the products and
@@ -153,6 +154,7 @@ class SpinRecoveryController:
         self._stopped_steps = 0
         self.thrust_axis_reference = UP.copy()
         self.axis_command = UP.copy()
+        self.thrust_command = self.params.mass * GRAVITY
         self._axis_slewed = None
 
     def equilibrium(self, failed_rotor: int) -> dict:
@@ -198,7 +200,7 @@ class SpinRecoveryController:
                                     np.asarray(obs["velocity"], dtype=float), rotor_speed, target, velocity_ref,
                                     self._gyro, self._pos_integral, self._lqr.working, self._outer_gains,
                                     self._scalars)
-        self.axis_command = self._slew(axis)
+        self.axis_command, self.thrust_command = self._slew(axis), thrust
         command, self.thrust_axis_reference = _inner_step(R, self.axis_command, self._gyro, rotor_speed, thrust,
                                                           self._lqr.model, self._scalars)
         return command

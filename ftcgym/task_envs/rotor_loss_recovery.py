@@ -11,9 +11,12 @@ from the nominal controller at the `loe_kalman` alarm after a propeller loss.
 - Action: Box(-1, 1, (4,)) float32 motor commands in the canonical rotor order (`rotor_order`), rescaled to
   the quadrotor's Box(0, 1): u = (a + 1) / 2, held for `action_repeat` simulator steps (the detector updates
   on each).
-- Observation: Box(37,) float32 from `recovery_features`, only what a flight computer has (sensors,
-  the task's set-point and the detector's outputs; never `info["truth"]`), in a frame that makes the
-  recovery's symmetries exact (see `recovery_features`).
+- Observation: Box(41,) float32 from `recovery_features`, only what a flight computer has (sensors,
+  the task's set-point, the detector's outputs and the guidance below; never `info["truth"]`), in a frame
+  that makes the recovery's symmetries exact (see `recovery_features`).
+- Guidance: a shadow `SpinRecoveryController` (the `ftc-spin` recovery, engaged at the alarm on the rotor the
+  detector isolated) sees every simulator step's observation, as it would flying; its outer loop's commanded
+  axis and collective thrust are features. It never flies: the agent's action is what flies.
 - Reward per agent step (the mean over the repeated simulator steps), from the quadrotor's reward
   (`ftcgym/envs/quadrotor.py` docstring: r = 1 - 0.5 min(|p - p_ref|, 4) - 0.5 (1 - cos tilt)
   - 0.05 mean(u^2), and -100 on a crash) with two changes:
@@ -22,11 +25,9 @@ from the nominal controller at the `loe_kalman` alarm after a propeller loss.
   altitude within 0.5 m), the horizontal error x0.5 (a spinning vehicle drifts while it settles); the
   tilt term is dropped, since the relaxed-hover equilibrium without one rotor keeps the body thrust
   axis off the vertical and spins about it (001 App. B). Rewards are computed from the simulator's truth.
-- Expert labels (`expert=True`, for imitation pre-training, `ftcgym.training.imitation`): a shadow
-  `SpinRecoveryController` (the `ftc-spin` recovery, engaged at the alarm on the rotor the detector
-  isolated) sees every simulator step's observation, as it would flying, and `info["expert_action"]` is
-  its command for the observation returned, in the action space's [-1, 1]. It only labels; the agent's
-  action is what flies.
+- Expert labels (`expert=True`, for imitation pre-training, `ftcgym.training.imitation`):
+  `info["expert_action"]` is the guiding controller's command for the observation returned, in the action
+  space's [-1, 1].
 - Domain randomisation (constructor keywords, drawn per episode from the env's seeded RNG):
   `vehicle` (a name or a list of names), `wind` (a dict, or a list of dicts to draw from, or
   {"mean_speed": [lo, hi], "turbulence": ...} for a random horizontal direction), `onset` ([lo, hi] s),
@@ -42,6 +43,7 @@ import numpy as np
 from gymnasium import spaces
 
 from ftcgym.agents import SpinRecoveryController, make_policy, policy_view
+from ftcgym.models.constants import GRAVITY
 from ftcgym.envs.action_space import ActionBox
 from ftcgym.fdd import wrap_with_detector
 from ftcgym.models.geometry import rotation_matrix
@@ -49,7 +51,7 @@ from ftcgym.models.tasks import make_task
 from ftcgym.models.wind import random_mean_wind
 
 DETECTOR = "loe_kalman"
-N_FEATURES = 37
+N_FEATURES = 41
 FEATURE_BOUND = 10.0
 RATE_SCALE = 10.0            # rad/s per unit (the gyro saturates at 34.9 rad/s = 3.5 units)
 POSITION_SCALE = 2.0         # m per unit
@@ -74,16 +76,25 @@ def rotor_order(status: dict) -> np.ndarray:
     return HALF_TURN_ROTORS if isolated is not None and int(isolated) >= 2 else np.arange(4)
 
 
-def recovery_features(obs: dict, status: dict, omega_max: float) -> np.ndarray:
+def recovery_features(obs: dict, status: dict, omega_max: float, axis_command, thrust_share: float) -> np.ndarray:
     """The flat observation of the recovery task (N_FEATURES float32) from a detector-wrapped quadrotor
-    observation and the detector's `info["fdd"]["loe_kalman"]` status. Also what `LearnedPolicy` feeds
-    the model in the benchmark, so training and evaluation see the same features.
+    observation, the detector's `info["fdd"]["loe_kalman"]` status and the guidance of `ftc-spin`'s outer
+    loop for that observation: `axis_command`, the world direction (NED unit vector) to spin about, and
+    `thrust_share`, the collective thrust it asks for over the nominal weight m g
+    (`SpinRecoveryController.axis_command`, `thrust_command`). Also what `LearnedPolicy` feeds the model in the
+    benchmark, so training and evaluation see the same features.
 
     gyro / 10 rad/s (3), the vertical in the body frame (R^T e_z, 3), position error / 2 m, velocity error
     / 2 m/s and reference velocity / 2 m/s in the body frame (3 each), the vertical position and velocity
-    errors (2), rotor speeds / omega_max (4), detector k_hat (4), log10 k_var / 6 (4), p_fail (4), one-hot
-    of the isolated rotor (4, zeros before an alarm); body vectors half-turned and rotor entries reordered
-    by `rotor_order`. Clipped to +-10.
+    errors (2), the commanded axis in the body frame (R^T n_des, 3) and thrust_share - 1 (1), rotor speeds /
+    omega_max (4), detector k_hat (4), log10 k_var / 6 (4), p_fail (4), one-hot of the isolated rotor (4,
+    zeros before an alarm); body vectors half-turned and rotor entries reordered by `rotor_order`. Clipped to
+    +-10.
+
+    The guidance makes the policy a learned attitude and motor layer under `ftc-spin`'s position loop: the
+    loop's commanded axis turns at a limited rate (`axis_slew_rate_deg`), a state no single observation holds,
+    and imitation of the loop without it fitted badly (docs/measurements.md, '`learned-spin` under
+    `ftc-spin`'s guidance').
 
     Two symmetries of the recovery are built in rather than left to be learned. Heading: gravity is the
     only direction the flight has, so no feature depends on the yaw (with world-frame attitude and errors a
@@ -106,6 +117,7 @@ def recovery_features(obs: dict, status: dict, omega_max: float) -> np.ndarray:
         turn * R[2],
         turn * (R.T @ position_error), turn * (R.T @ velocity_error), turn * (R.T @ reference_velocity),
         [position_error[2], velocity_error[2]],
+        turn * (R.T @ np.asarray(axis_command, dtype=float)), [thrust_share - 1.0],
         (np.asarray(obs["rotor_speed"]) / omega_max)[order],
         np.asarray(obs[prefix + "k_hat"])[order],
         (np.log10(np.asarray(obs[prefix + "k_var"]) + 1e-12) / VARIANCE_DECADES)[order],
@@ -158,7 +170,8 @@ class RotorLossRecoveryEnv(gym.Env):
         self.agent_hz, self.sensors = float(agent_hz), sensors
         self.detector_kwargs = dict(detector_kwargs or {})
         self.expert = bool(expert)
-        self._expert_controller, self._expert_action = None, None
+        self._guides: dict[str, SpinRecoveryController] = {}   # ftc-spin's controller per vehicle (guidance)
+        self._guide, self._expert_action = None, None
         self.observation_space = spaces.Box(-FEATURE_BOUND, FEATURE_BOUND, (N_FEATURES,), np.float32)
         self.action_space = ActionBox(-1.0, 1.0, (4,), np.float32)
         self._envs: dict[tuple, gym.Env] = {}   # one simulator per (vehicle, task), built on first use
@@ -181,7 +194,7 @@ class RotorLossRecoveryEnv(gym.Env):
         for _ in range(self.action_repeat):
             self._obs, _, terminated, truncated, info = self.env.step(command)
             self._info = info
-            self._label_expert()
+            self._follow_guide()
             reward += recovery_reward(info, command)
             if terminated or truncated:
                 break
@@ -216,16 +229,19 @@ class RotorLossRecoveryEnv(gym.Env):
         self._order = rotor_order(info["fdd"][DETECTOR])     # the alarm is latched: fixed for the episode
         self._episode = {"vehicle": base.params.name, "task": base.task.name,
                          "failed_rotor": rotor, "onset_time": onset, "alarm_time": info["time"]}
-        if self.expert:
-            self._expert_controller = SpinRecoveryController(base.params, base.agent_hz)
-            self._expert_controller.engage(info["fdd"][DETECTOR]["isolated"], obs)
-            self._label_expert()
+        if base.params.name not in self._guides:
+            self._guides[base.params.name] = SpinRecoveryController(base.params, base.agent_hz)
+        self._guide = self._guides[base.params.name]
+        self._guide.reset()
+        self._guide.engage(info["fdd"][DETECTOR]["isolated"], obs)
+        self._follow_guide()
         return True
 
-    def _label_expert(self) -> None:
-        """The shadow expert's command for the current observation (it must see every simulator step)."""
-        if self._expert_controller is not None:
-            command = self._expert_controller.act(self._obs, self._info)
+    def _follow_guide(self) -> None:
+        """`ftc-spin`'s controller on the current observation (it must see every simulator step): its outer
+        loop's guidance for the features and, with `expert`, its command as the label. It never flies."""
+        command = self._guide.act(self._obs, self._info)
+        if self.expert:
             self._expert_action = (2.0 * np.asarray(command, dtype=np.float32) - 1.0)[self._order]
 
     def _simulator(self, vehicle: str, task: int) -> gym.Env:
@@ -237,7 +253,9 @@ class RotorLossRecoveryEnv(gym.Env):
         return self._envs[vehicle, task]
 
     def _features(self) -> np.ndarray:
-        return recovery_features(self._obs, self._info["fdd"][DETECTOR], self.env.unwrapped.params.omega_max)
+        params = self.env.unwrapped.params
+        return recovery_features(self._obs, self._info["fdd"][DETECTOR], params.omega_max, self._guide.axis_command,
+                                 self._guide.thrust_command / (params.mass * GRAVITY))
 
     def _task_info(self) -> dict:
         info = {"time": self._info["time"], "crashed": self._info["crashed"], **self._episode,

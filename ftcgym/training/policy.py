@@ -11,12 +11,11 @@ Recovery is scored against the policy's `thrust_axis_reference` (docs/concepts.m
 A vehicle without one propeller recovers into the relaxed hover (Mueller & D'Andrea 2014; 001 App. B), whose
 thrust axis circles the commanded primary axis at the equilibrium's tilt. `axis_reference` picks how the
 learned policy states where its thrust axis belongs after the alarm:
-- "ftc-spin" (default): where `ftc-spin`'s would, from a shadow `SpinRecoveryController` engaged on the
-  isolated rotor that sees every observation and never flies. The two policies are then scored by the same
-  rule: the equilibrium's thrust axis about the primary axis that ftc-spin's position loop commands (it
-  leans up to 20 deg to correct position). The shadow keeps the outer loop and arrest the shipped model
-  imitated (`IMITATED_GAINS`): scored against a later, stiffer position loop, a policy that never saw it
-  would count as off its axis.
+- "ftc-spin" (default): where `ftc-spin`'s would, from the shadow `SpinRecoveryController` engaged on the
+  isolated rotor that sees every observation, never flies, and gives the model its guidance features (the
+  task's, `recovery_features`). The two policies are then scored by the same rule: the equilibrium's thrust
+  axis about the primary axis that ftc-spin's position loop commands (it leans up to 30 deg to correct
+  position).
 - "equilibrium": the equilibrium's thrust axis about the vertical, `thrust_axis_reference_for(R, R^T up,
   n_bar)`; stricter, since leaning to correct position counts as error.
 """
@@ -28,7 +27,8 @@ import numpy as np
 
 from ftcgym.agents import flies_airspeed, is_quadplane, make_policy
 from ftcgym.agents.base import UP
-from ftcgym.agents.spin_recovery import SpinRecoveryController, gains_for, thrust_axis_reference_for
+from ftcgym.agents.spin_recovery import SpinRecoveryController, thrust_axis_reference_for
+from ftcgym.models.constants import GRAVITY
 from ftcgym.models.geometry import rotation_matrix
 from ftcgym.task_envs.airspeed_source import DETECTOR as AIRSPEED_DETECTOR
 from ftcgym.task_envs.airspeed_source import ENV_ID as AIRSPEED_ENV_ID
@@ -44,19 +44,6 @@ from ftcgym.training.saved import (  # noqa: F401
 )
 
 TASK_ENV_ID = "ftcgym/RotorLossRecovery-v0"
-
-
-#: The spin recovery's outer loop and arrest when the shipped `learned-spin` was imitated from it.
-IMITATED_GAINS = {"position": (1.2, 1.2, 4.0), "velocity": (1.6, 1.6, 3.5), "max_axis_tilt_deg": 20.0,
-                  "max_horizontal_speed": 2.0, "arrest_attitude_gain": 0.0, "axis_slew_rate_deg": None}
-
-
-def imitated_gains(params):
-    """`spin_recovery.gains_for(params)` with IMITATED_GAINS: the expert the shipped model learned from."""
-    gains = gains_for(params)
-    for name, value in IMITATED_GAINS.items():
-        setattr(gains, name, value)
-    return gains
 
 
 class LearnedPolicy(SavedModelPolicy):
@@ -79,15 +66,16 @@ class LearnedPolicy(SavedModelPolicy):
             shape = tuple(model.observation_space.shape)
             if shape != (N_FEATURES,):
                 raise ValueError(f"LearnedPolicy: the model takes {shape} observations; recovery_features gives "
-                                 f"({N_FEATURES},); a model of the earlier 38-feature layout must be retrained "
-                                 f"(`ftcgym train`)")
+                                 f"({N_FEATURES},); a model of an earlier feature layout (37 or 38) must be "
+                                 f"retrained (`ftcgym train`)")
             if env is None:
                 raise ValueError("LearnedPolicy: a rotor-loss-recovery model needs the env (for its nominal "
                                  "controller)")
             self.nominal = make_policy("nominal", env)
             self.omega_max = env.unwrapped.params.omega_max
             params = env.unwrapped.params
-            self._shadow = SpinRecoveryController(params, env.unwrapped.agent_hz, imitated_gains(params))
+            self._shadow = SpinRecoveryController(params, env.unwrapped.agent_hz)
+            self._weight = params.mass * GRAVITY
         self.reset()
 
     @property
@@ -121,10 +109,10 @@ class LearnedPolicy(SavedModelPolicy):
             self._shadow.engage(int(status["isolated"]), obs)
             self._primary_axis = self._shadow.equilibrium(int(status["isolated"]))["n"]
         self._attitude = rotation_matrix(obs["attitude"])
-        if self.axis_reference == "ftc-spin":
-            self._shadow.act(obs, info)          # only to keep its reference current; never flown
+        self._shadow.act(obs, info)          # its guidance and reference for this observation; never flown
         if self._steps % self.action_repeat == 0:
-            features = recovery_features(obs, status, self.omega_max)
+            features = recovery_features(obs, status, self.omega_max, self._shadow.axis_command,
+                                         self._shadow.thrust_command / self._weight)
             self._action = to_motor_command(self.predict(features))[rotor_order(status)]
         self._steps += 1
         return self._action
