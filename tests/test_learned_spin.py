@@ -62,3 +62,15 @@ def test_shipped_model_on_the_wrong_vehicle_says_which_it_flies(policy, scenario
     with pytest.raises(ValueError, match=f"flies {flies}, not"):
         make_policy(policy, env)
     env.close()
+
+
+def test_a_model_of_an_earlier_feature_layout_is_refused_with_what_to_do():
+    from types import SimpleNamespace
+
+    from ftcgym.training.policy import LearnedPolicy
+    env = _env()
+    old = SimpleNamespace(observation_space=SimpleNamespace(shape=(37,)))
+    with pytest.raises(ValueError, match=rf"takes \(37,\) observations; recovery_features gives \({N_FEATURES},\).*"
+                                         r"must be retrained"):
+        LearnedPolicy(old, env=env)
+    env.close()
