@@ -43,9 +43,9 @@ import numpy as np
 from gymnasium import spaces
 
 from ftcgym.agents import SpinRecoveryController, make_policy, policy_view
-from ftcgym.models.constants import GRAVITY
 from ftcgym.envs.action_space import ActionBox
 from ftcgym.fdd import wrap_with_detector
+from ftcgym.models.constants import GRAVITY
 from ftcgym.models.geometry import rotation_matrix
 from ftcgym.models.tasks import make_task
 from ftcgym.models.wind import random_mean_wind
