@@ -127,6 +127,13 @@ def recovery_features(obs: dict, status: dict, omega_max: float, axis_command, t
     return np.clip(features, -FEATURE_BOUND, FEATURE_BOUND).astype(np.float32)
 
 
+def guided_features(obs: dict, status: dict, guide: SpinRecoveryController) -> np.ndarray:
+    """`recovery_features` with the guidance of `guide`, a shadow `ftc-spin` controller that has acted on `obs`."""
+    params = guide.params
+    return recovery_features(obs, status, params.omega_max, guide.axis_command,
+                             guide.thrust_command / (params.mass * GRAVITY))
+
+
 def to_motor_command(action) -> np.ndarray:
     """The quadrotor's Box(0, 1) command of a Box(-1, 1) policy action."""
     return (np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0) + 1.0) / 2.0
@@ -253,9 +260,7 @@ class RotorLossRecoveryEnv(gym.Env):
         return self._envs[vehicle, task]
 
     def _features(self) -> np.ndarray:
-        params = self.env.unwrapped.params
-        return recovery_features(self._obs, self._info["fdd"][DETECTOR], params.omega_max, self._guide.axis_command,
-                                 self._guide.thrust_command / (params.mass * GRAVITY))
+        return guided_features(self._obs, self._info["fdd"][DETECTOR], self._guide)
 
     def _task_info(self) -> dict:
         info = {"time": self._info["time"], "crashed": self._info["crashed"], **self._episode,

@@ -14,7 +14,7 @@ learned policy states where its thrust axis belongs after the alarm:
 - "ftc-spin" (default): where `ftc-spin`'s would, from the shadow `SpinRecoveryController` engaged on the
   isolated rotor that sees every observation, never flies, and gives the model its guidance features (the
   task's, `recovery_features`). The two policies are then scored by the same rule: the equilibrium's thrust
-  axis about the primary axis that ftc-spin's position loop commands (it leans up to 30 deg to correct
+  axis about the primary axis that ftc-spin's position loop commands (it leans up to 20-30 deg to correct
   position).
 - "equilibrium": the equilibrium's thrust axis about the vertical, `thrust_axis_reference_for(R, R^T up,
   n_bar)`; stricter, since leaning to correct position counts as error.
@@ -28,12 +28,11 @@ import numpy as np
 from ftcgym.agents import flies_airspeed, is_quadplane, make_policy
 from ftcgym.agents.base import UP
 from ftcgym.agents.spin_recovery import SpinRecoveryController, thrust_axis_reference_for
-from ftcgym.models.constants import GRAVITY
 from ftcgym.models.geometry import rotation_matrix
 from ftcgym.task_envs.airspeed_source import DETECTOR as AIRSPEED_DETECTOR
 from ftcgym.task_envs.airspeed_source import ENV_ID as AIRSPEED_ENV_ID
 from ftcgym.task_envs.airspeed_source import airspeed_features, blend, to_weight
-from ftcgym.task_envs.rotor_loss_recovery import DETECTOR, N_FEATURES, recovery_features, rotor_order, to_motor_command
+from ftcgym.task_envs.rotor_loss_recovery import DETECTOR, N_FEATURES, guided_features, rotor_order, to_motor_command
 from ftcgym.training.saved import (  # noqa: F401
     MANIFEST_FILE,
     MODEL_FILE,
@@ -72,10 +71,7 @@ class LearnedPolicy(SavedModelPolicy):
                 raise ValueError("LearnedPolicy: a rotor-loss-recovery model needs the env (for its nominal "
                                  "controller)")
             self.nominal = make_policy("nominal", env)
-            self.omega_max = env.unwrapped.params.omega_max
-            params = env.unwrapped.params
-            self._shadow = SpinRecoveryController(params, env.unwrapped.agent_hz)
-            self._weight = params.mass * GRAVITY
+            self._shadow = SpinRecoveryController(env.unwrapped.params, env.unwrapped.agent_hz)
         self.reset()
 
     @property
@@ -111,8 +107,7 @@ class LearnedPolicy(SavedModelPolicy):
         self._attitude = rotation_matrix(obs["attitude"])
         self._shadow.act(obs, info)          # its guidance and reference for this observation; never flown
         if self._steps % self.action_repeat == 0:
-            features = recovery_features(obs, status, self.omega_max, self._shadow.axis_command,
-                                         self._shadow.thrust_command / self._weight)
+            features = guided_features(obs, status, self._shadow)
             self._action = to_motor_command(self.predict(features))[rotor_order(status)]
         self._steps += 1
         return self._action
