@@ -155,3 +155,33 @@ def test_fine_tuning_starts_from_a_saved_model(tmp_path):
     config.policy_kwargs = {"net_arch": [32, 32]}
     with pytest.raises(ValueError, match="init_from"):
         train(config, tmp_path / "mismatch", progress=False, init_from=shipped)
+
+
+def test_dagger_continues_from_a_saved_model(tmp_path):
+    from stable_baselines3 import PPO
+
+    from ftcgym.training.config import plan_line
+    from ftcgym.training.policy import load_normalizer
+    from ftcgym.training.shipped import shipped_path
+    from ftcgym.training.train import train
+
+    shipped = shipped_path("learned-spin")
+    config = load_config("rotor-loss-recovery", n_envs=1, total_steps=0)
+    config.env_kwargs = {**config.env_kwargs, **FAST_TASK}
+    config.eval = None
+    config.pretrain = {**config.pretrain, "iterations": 1, "steps_per_iteration": 300, "beta": 0.0, "epochs": 1,
+                       "learning_rate": 1e-6, "continue_from_init": True}
+    assert "DAgger 1 iteration x 300 steps" in plan_line(config, "OUT", init_from=shipped)
+    with pytest.raises(ValueError, match="continue_from_init.*--init-from"):
+        train(config, tmp_path / "nothing", progress=False)
+    manifest = train(config, tmp_path / "continued", progress=False, init_from=shipped)
+    assert manifest["init_from"] == str(shipped)
+    assert manifest["pretrain"]["iterations"][0]["samples"] == 300       # the learner flew 300 labelled steps
+    # its fit started from the shipped policy: the labels' error is the shipped policy's (MSE 0.010 on these
+    # 300 steps), not an untrained network's (0.90 by the same run without --init-from)
+    assert manifest["pretrain"]["iterations"][0]["action_mse"] < 0.03
+    features = np.random.default_rng(1).uniform(-1, 1, (16, N_FEATURES)).astype(np.float32)
+    def act(folder):
+        observation = load_normalizer(folder / "vecnormalize.pkl").normalize_obs(features)
+        return PPO.load(folder / "model.zip").predict(observation, deterministic=True)[0]
+    assert np.max(np.abs(act(shipped) - act(tmp_path / "continued"))) < 0.05

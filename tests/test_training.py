@@ -126,6 +126,22 @@ def test_task_env_draws_its_task_per_episode():
     env.close()
 
 
+def test_task_env_draws_its_onset_from_windows():
+    env = RotorLossRecoveryEnv(**{**FAST_TASK, "onset": [[0.5, 0.6], [1.5, 1.6]]})
+    assert env.onset == (0.5, 1.6)                                 # the span sizes the simulator's episode
+    onsets = [env.reset(seed=seed)[1]["onset_time"] for seed in range(8)]
+    assert all(0.5 <= t <= 0.6 or 1.5 <= t <= 1.6 for t in onsets)
+    assert min(onsets) <= 0.6 and max(onsets) >= 1.5               # both windows drawn in 8 episodes
+    plain, listed = RotorLossRecoveryEnv(**FAST_TASK), RotorLossRecoveryEnv(**{**FAST_TASK, "onset": [[0.5, 1.0]]})
+    for seed in range(3):                                          # one window draws no pick: the same episodes
+        assert plain.reset(seed=seed)[1]["onset_time"] == listed.reset(seed=seed)[1]["onset_time"]
+    for bad in ([[1.0, 0.5]], [[0.5, 1.0], [2.0]], [[0.5, 1.0], "late"]):
+        with pytest.raises(ValueError, match=r"onset"):
+            RotorLossRecoveryEnv(onset=bad)
+    for each in (env, plain, listed):
+        each.close()
+
+
 def test_task_env_rewards_holding_altitude_and_ends_on_horizon_or_crash():
     env = RotorLossRecoveryEnv(failed_rotor=2, **FAST_TASK)
     obs, info = env.reset(seed=0)

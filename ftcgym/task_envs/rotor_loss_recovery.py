@@ -30,7 +30,8 @@ from the nominal controller at the `loe_kalman` alarm after a propeller loss.
   space's [-1, 1].
 - Domain randomisation (constructor keywords, drawn per episode from the env's seeded RNG):
   `vehicle` (a name or a list of names), `wind` (a dict, or a list of dicts to draw from, or
-  {"mean_speed": [lo, hi], "turbulence": ...} for a random horizontal direction), `onset` ([lo, hi] s),
+  {"mean_speed": [lo, hi], "turbulence": ...} for a random horizontal direction), `onset` ([lo, hi] s, or a
+  list of such windows drawn with equal weight),
   `failed_rotor` ("random", an index or a list of indices), `task` (a quadrotor task, or a list of tasks to
   draw from: a policy trained on hover alone meets a rotor loss at speed out of its training distribution).
 """
@@ -166,7 +167,8 @@ class RotorLossRecoveryEnv(gym.Env):
                  detector_kwargs: dict | None = None, sensors: dict | None = None, expert: bool = False):
         self.vehicles = [vehicle] if isinstance(vehicle, str) else list(vehicle)
         self.winds = wind if isinstance(wind, list) else [wind]
-        self.onset = interval(onset, "onset")
+        self.onsets = _onsets(onset)
+        self.onset = (min(lo for lo, _ in self.onsets), max(hi for _, hi in self.onsets))   # their span
         self.failed_rotors = _rotors(failed_rotor)
         if not (horizon_seconds > 0):
             raise ValueError(f"horizon_seconds: must be > 0, got {horizon_seconds!r}")
@@ -221,7 +223,8 @@ class RotorLossRecoveryEnv(gym.Env):
         self.env = self._simulator(self.vehicles[rng.integers(len(self.vehicles))], int(rng.integers(len(self.tasks))))
         wind = _draw_wind(self.winds[rng.integers(len(self.winds))], rng)
         rotor = int(rng.choice(self.failed_rotors))
-        onset = float(rng.uniform(*self.onset))
+        window = self.onsets[rng.integers(len(self.onsets))] if len(self.onsets) > 1 else self.onsets[0]
+        onset = float(rng.uniform(*window))
         options = {"wind": wind, "faults": [{"kind": "rotor_loss", "target": rotor, "time": onset}]}
         obs, info = self.env.reset(seed=int(rng.integers(2**31)), options=options)
         base = self.env.unwrapped
@@ -291,6 +294,14 @@ def interval(value, name: str, positive: bool = False) -> tuple[float, float]:
         bound = "0 < lo <= hi" if positive else "0 <= lo <= hi"
         raise ValueError(f"{name}: expected a number or [lo, hi] with {bound}, got {value!r}")
     return low, high
+
+
+def _onsets(value) -> list[tuple[float, float]]:
+    """The onset windows to draw from: one [lo, hi] (or a number), or a non-empty list of [lo, hi] windows
+    drawn with equal weight (to put more of the training on the hard moments of a task)."""
+    if isinstance(value, (list, tuple)) and value and all(isinstance(v, (list, tuple)) for v in value):
+        return [interval(v, f"onset[{i}]") for i, v in enumerate(value)]
+    return [interval(value, "onset")]
 
 
 def _tasks(value) -> list:

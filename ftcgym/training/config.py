@@ -188,8 +188,12 @@ def rl_steps(config: TrainConfig) -> int:
 
 
 def runs_pretraining(config: TrainConfig, init_from=None) -> bool:
-    """Whether a run starts with the config's imitation pre-training (PPO only, not when fine-tuning)."""
-    return bool(config.pretrain) and config.algo == "PPO" and init_from is None
+    """Whether a run starts with the config's imitation pre-training (PPO only). From a saved model
+    (`init_from`) only when the `pretrain` section says `continue_from_init: true` (continued imitation);
+    otherwise such a run is fine-tuning by RL alone."""
+    if not config.pretrain or config.algo != "PPO":
+        return False
+    return init_from is None or bool(config.pretrain.get("continue_from_init", False))
 
 
 def dagger_plan(config: TrainConfig) -> tuple[int, int]:

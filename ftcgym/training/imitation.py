@@ -47,6 +47,7 @@ class DaggerSettings:
     value_epochs: int = 10
     loss: str = "mse"                     # "mse", or "saturated": no penalty beyond a bound the label sits at
     final_epochs: int = 0                 # after the last iteration: passes over the whole set, rate annealed to 0
+    continue_from_init: bool = False      # with --init-from: DAgger continues from the saved model (else skipped)
 
     @classmethod
     def from_config(cls, section: dict) -> DaggerSettings:

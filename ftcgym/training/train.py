@@ -36,7 +36,7 @@ from pathlib import Path
 import gymnasium as gym
 
 from ftcgym.benchmark.outputs import OutputFolder
-from ftcgym.training.config import ACTIVATIONS, TrainConfig, dagger_plan, rl_steps
+from ftcgym.training.config import ACTIVATIONS, TrainConfig, dagger_plan, rl_steps, runs_pretraining
 from ftcgym.training.policy import MANIFEST_FILE, MODEL_FILE, NORMALIZER_FILE
 
 #: what a run writes in OUT as it trains (the final files are staged and published at the end)
@@ -97,14 +97,17 @@ def train(config: TrainConfig, out: str | Path, progress: bool = True, command: 
           verbose: int = 0, init_from: str | Path | None = None) -> dict:
     """Run `config`, write the outputs listed in the module docstring to `out`; returns the manifest.
     `init_from`: a saved model (folder or .zip, e.g. a shipped policy) whose weights and observation
-    statistics start the run instead of the config's pre-training (fine-tuning). Holds `out`'s lock from the
-    start (`outputs.OutputFolder`: FolderInUse if another run holds it); the model, its statistics and the
-    manifest are staged and published together at the end. RL runs `config.rl_steps(config)` steps: the
-    requested `total_steps` rounded up to whole rollouts.
+    statistics start the run instead of the config's pre-training (fine-tuning), or before it where the
+    `pretrain` section says `continue_from_init: true` (continued DAgger; `config.runs_pretraining`). Holds
+    `out`'s lock from the start (`outputs.OutputFolder`: FolderInUse if another run holds it); the model, its
+    statistics and the manifest are staged and published together at the end. RL runs `config.rl_steps(config)`
+    steps: the requested `total_steps` rounded up to whole rollouts.
 
     A KeyboardInterrupt (Ctrl-C) during the pre-training or RL publishes the model so far the same way, its
     manifest marked `"interrupted"`, and raises `TrainingInterrupted`; one before the model is built leaves
     the folder as it was."""
+    if (config.pretrain or {}).get("continue_from_init") and init_from is None:
+        raise ValueError("pretrain.continue_from_init: DAgger continues from a saved model; give one (--init-from)")
     with OutputFolder(out) as folder:
         return _train(config, folder, progress, command, verbose, init_from)
 
@@ -154,10 +157,10 @@ def _train(config: TrainConfig, folder: OutputFolder, progress: bool, command: s
     try:
         if init_from is not None:
             _initialise(model, venv, init_from, config)
-        elif config.pretrain and config.algo != "PPO":
+        if config.pretrain and config.algo != "PPO":
             print(f"ftcgym train: the config's imitation pre-training fits PPO's actor-critic; "
                   f"skipped for {config.algo}")
-        elif config.pretrain:
+        elif runs_pretraining(config, init_from):
             pretraining = []
             try:
                 _pretrain(config, model, venv, out, pretraining, progress=progress, verbose=bool(verbose),
