@@ -223,6 +223,7 @@ class RotorLossRecoveryEnv(gym.Env):
         self.env = self._simulator(self.vehicles[rng.integers(len(self.vehicles))], int(rng.integers(len(self.tasks))))
         wind = _draw_wind(self.winds[rng.integers(len(self.winds))], rng)
         rotor = int(rng.choice(self.failed_rotors))
+        # one window draws no pick, so the episodes of a single-window config keep their seeded draws
         window = self.onsets[rng.integers(len(self.onsets))] if len(self.onsets) > 1 else self.onsets[0]
         onset = float(rng.uniform(*window))
         options = {"wind": wind, "faults": [{"kind": "rotor_loss", "target": rotor, "time": onset}]}
