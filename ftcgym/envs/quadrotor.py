@@ -141,11 +141,17 @@ class QuadrotorEnv(FlightEnv):
 
     # ----------------------------------------------------------------------------------------- step
     def step(self, action):
-        command = check_command(action, 4, 0.0, 1.0, "normalised rotor commands")
-        low, span = self._omega_low, self._omega_span
-        self._omega_cmd = np.array([low + c * span for c in command])       # `RotorSet.command_to_omega`
+        low, span, omega_cmd = self._omega_low, self._omega_span, self._omega_cmd
+        # The common case, a float array of four finite commands, in one compiled call; anything else through
+        # `check_command`, which raises on what is wrong (a non-finite command leaves `omega_cmd` untouched).
+        effort = (rotor_command(action, low, span, omega_cmd)
+                  if type(action) is np.ndarray and action.dtype in _FLOAT_DTYPES and action.shape == (4,)
+                  else math.nan)
+        if effort != effort:
+            command = check_command(action, 4, 0.0, 1.0, "normalised rotor commands")
+            effort = rotor_command(np.array(command), low, span, omega_cmd)
         obs, terminated, truncated = self._advance()
-        reward = self._reward(command)
+        reward = self._reward(effort)
         return obs, reward, terminated, truncated, self._info()
 
     def _physics_step(self) -> None:
@@ -173,21 +179,18 @@ class QuadrotorEnv(FlightEnv):
     def _observe(self) -> dict:
         """The readings and the set-point as views of one fresh array (one allocation per step)."""
         ref = self._reference = self.task.reference(self.time)
-        flat = self.sensors.sample(self._p, self._v, self._q, self._w, self._sf, self.rotors.omega, extra=7)
-        flat[-7:-4] = ref.position
-        flat[-4:-1] = ref.velocity
-        flat[-1] = ref.yaw
+        flat = self.sensors.sample(self._p, self._v, self._q, self._w, self._sf, self.rotors.omega, ref.as_array)
         readings = {key: flat[start:stop] for key, start, stop in _OBSERVATION_SLICES}
-        return self._faults.apply_to_sensors(self.time, readings)
+        faults = self._faults
+        return faults.apply_to_sensors(self.time, readings) if faults.acts_on_sensors else readings
 
-    def _reward(self, command) -> float:
+    def _reward(self, effort: float) -> float:
+        """The module docstring's reward; `effort` is the sum of the squared (clipped) commands."""
         if self._crashed:
             return -CRASH_PENALTY
         (x, y, z), ref = self._p, self._reference.position.tolist()
         ex, ey, ez = x - ref[0], y - ref[1], z - ref[2]
         error = math.sqrt(ex * ex + ey * ey + ez * ez)
-        u0, u1, u2, u3 = command
-        effort = u0 * u0 + u1 * u1 + u2 * u2 + u3 * u3
         return 1.0 - 0.5 * min(error, 4.0) - 0.5 * (1.0 - self._Rm[8]) - 0.05 * effort / 4
 
     def _info(self) -> dict:
@@ -213,6 +216,26 @@ class QuadrotorEnv(FlightEnv):
             }
         info.update(self._outcome())
         return info
+
+
+#: the action dtypes `rotor_command` takes directly (others go through `check_command` first)
+_FLOAT_DTYPES = (np.dtype(np.float32), np.dtype(np.float64))
+
+
+@njit(cache=True)
+def rotor_command(command, low, span, omega_cmd):  # pragma: no cover (compiled)
+    """The rotor-speed commands omega_cmd = low + clip(u, 0, 1) span, in place (`RotorSet.command_to_omega`), and
+    the effort sum of u^2 over the clipped commands; NaN, with `omega_cmd` untouched, if a command is not
+    finite. Per command the operations of the Python step it replaced, in the same order (same bits)."""
+    for i in range(4):
+        if not math.isfinite(command[i]):
+            return math.nan
+    effort = 0.0
+    for i in range(4):
+        u = min(max(float(command[i]), 0.0), 1.0)
+        omega_cmd[i] = low + u * span
+        effort += u * u
+    return effort
 
 
 @njit(cache=True)

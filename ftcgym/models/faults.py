@@ -215,6 +215,7 @@ class FaultSchedule:
         self._pitot = [s for s in self.specs if s.kind == "pitot_blockage"]
         self._propulsion = [s for s in self.specs if s.kind in PROPULSION_KINDS]
         self.has_propulsion_faults = bool(self._propulsion)
+        self.acts_on_sensors = bool(self._sensor)     # else `apply_to_sensors` leaves every reading as it is
         self._stuck: dict[int, np.ndarray] = {}
         self._dicts = [s.to_dict() for s in self.specs]
         ends = [s.time + s.duration for s in self.specs if _ends(s)]

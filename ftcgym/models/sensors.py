@@ -36,6 +36,7 @@ _LEVEL, _RATE = Range(0.0, 1e6), Range(1e-3, 1e6)
 #: the readings of `QuadrotorSensors.read`, in order, with their sizes
 READINGS = (("gyro", 3), ("accel", 3), ("attitude", 4), ("position", 3), ("velocity", 3), ("rotor_speed", 4))
 _N_READINGS = sum(size for _, size in READINGS)
+_NO_TAIL = np.empty(0)
 
 
 @dataclass(frozen=True)
@@ -117,29 +118,27 @@ class QuadrotorSensors:
 
     rotor_angles = property(lambda self: self._phase, doc="the rotors' angles (rad), in place (`advance_phase`)")
 
-    def _next_noise_row(self) -> int:
-        if self._row >= len(self._noise):
-            self._noise = self._rng.standard_normal((_BLOCK, self._scales.size)) * self._scales
-            self._row = 0
-        self._row += 1
-        return self._row - 1
-
     def read(self, position, velocity, quat, body_rates, specific_force, omega) -> dict:
         """One sample of every sensor, from the true state (NED / FRD; arrays or sequences of floats): a dict of
         fresh arrays (views of one array made per sample), keys and sizes as `READINGS`."""
-        flat = self.sample(position, velocity, quat, body_rates, specific_force, omega)
+        flat = self.sample(_floats(position), _floats(velocity), _floats(quat), _floats(body_rates),
+                           _floats(specific_force), np.asarray(omega, dtype=float))
         return {key: flat[start:stop] for key, start, stop in _READING_SLICES}
 
-    def sample(self, position, velocity, quat, body_rates, specific_force, omega, extra: int = 0) -> np.ndarray:
-        """`read` as one fresh array, the readings of `READINGS` one after the other, then `extra` unset places
-        (for the caller's own entries)."""
-        row = self._next_noise_row()
-        hold = self._count % self._hold_steps == 0
-        self._count += 1
-        return _sample(self._noise[row], self._phase, np.asarray(omega, dtype=float), self._omega_ref2,
-                       self._gyro_vib_dirs, self._accel_vib_dirs, self._biases, self._limits, self._held, hold,
-                       _floats(position), _floats(velocity), _floats(quat), _floats(body_rates),
-                       _floats(specific_force), extra)
+    def sample(self, position: tuple, velocity: tuple, quat: tuple, body_rates: tuple, specific_force: tuple,
+               omega: np.ndarray, tail: np.ndarray = _NO_TAIL) -> np.ndarray:
+        """`read` as one fresh array, the readings of `READINGS` one after the other, then the caller's own
+        entries `tail` (the physics step's form: the state as tuples of floats, `omega` a float array)."""
+        row = self._row
+        if row == len(self._noise):      # the next block of noise (one draw from the generator per block)
+            self._noise = self._rng.standard_normal((_BLOCK, self._scales.size)) * self._scales
+            row = 0
+        self._row = row + 1
+        count = self._count
+        self._count = count + 1
+        return _sample(self._noise[row], self._phase, omega, self._omega_ref2, self._gyro_vib_dirs,
+                       self._accel_vib_dirs, self._biases, self._limits, self._held, count % self._hold_steps == 0,
+                       position, velocity, quat, body_rates, specific_force, tail)
 
 
 def _floats(values) -> tuple:
@@ -157,16 +156,16 @@ def advance_phase(phase, omega, dt):  # pragma: no cover (compiled)
 
 @njit(cache=True)
 def _sample(n, phase, omega, ref2, gyro_vib, accel_vib, biases, limits, held, hold, position, velocity, quat,
-            rates, specific_force, extra):  # pragma: no cover (compiled)
+            rates, specific_force, tail):  # pragma: no cover (compiled)
     """One sample of every reading of `QuadrotorSensors` (module docstring) with the noise row `n`: a fresh array
-    of the `READINGS` then `extra` unset places; `held` (position, velocity) is sampled anew when `hold`."""
+    of the `READINGS` then the entries of `tail`; `held` (position, velocity) is sampled anew when `hold`."""
     g, a, p_top, v_top, w_top = limits[0], limits[1], limits[2], limits[3], limits[4]
     # vibration amplitude of each rotor ~ (omega_i / omega_hover)^2, at its angle
     v0 = (omega[0] * omega[0] / ref2) * math.sin(phase[0])
     v1 = (omega[1] * omega[1] / ref2) * math.sin(phase[1])
     v2 = (omega[2] * omega[2] / ref2) * math.sin(phase[2])
     v3 = (omega[3] * omega[3] / ref2) * math.sin(phase[3])
-    out = np.empty(_N_READINGS + extra)
+    out = np.empty(_N_READINGS + tail.size)
     for i in range(3):
         # vib @ dirs: the pairings are those of BLAS's kernels for these layouts (gyro directions row-major,
         # accel directions column-major), so the readings keep their bits from the numpy version.
@@ -181,6 +180,7 @@ def _sample(n, phase, omega, ref2, gyro_vib, accel_vib, biases, limits, held, ho
     out[10:16] = held
     for i in range(4):
         out[16 + i] = min(max(omega[i] + n[15 + i], 0.0), w_top)
+    out[_N_READINGS:] = tail
     return out
 
 

@@ -45,6 +45,12 @@ class Reference:
     velocity: np.ndarray   # NED m/s
     yaw: float             # rad
 
+    @cached_property
+    def as_array(self) -> np.ndarray:
+        """(position, velocity, yaw) end to end, 7 floats: the observation's reference_* entries (computed once
+        per set-point; a task at rest hands out the same set-point at every step)."""
+        return np.array([*self.position.tolist(), *self.velocity.tolist(), self.yaw])
+
 
 def _fixed(north: float, east: float, altitude: float, yaw: float) -> Reference:
     """A set-point at rest, its arrays read-only (a task hands out the same one at every step)."""
