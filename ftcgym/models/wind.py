@@ -172,7 +172,7 @@ class DrydenWind:
         self._transition = np.vstack([ad, out @ ad])
         self._out = out
         self._state = np.zeros(5)
-        self._noise = np.empty((0, 8))
+        self._winds: list[tuple] = []    # the next steps' winds (`_refill`), from `_index` on
         self._index = 0
 
     @classmethod
@@ -195,14 +195,17 @@ class DrydenWind:
             return self._velocity.copy()
         self._state = self._init_factor @ rng.standard_normal(5)
         self._velocity = self._out @ self._state + self._mean
-        self._noise = np.empty((0, 8))  # discard noise drawn before this reset
+        self._winds = []  # discard winds drawn before this reset
         self._index = 0
         return self._velocity.copy()
 
     def _refill(self) -> None:
-        """Draw _BLOCK steps of process noise, pre-mapped to [w; out w + mean] rows."""
+        """The winds of the next _BLOCK steps: draw their process noise, pre-mapped to [w; out w + mean] rows, and
+        run the filter over the block in one compiled loop (the turbulence does not depend on the vehicle, so
+        it can run ahead of the physics; `_state` is then the block's last state)."""
         noise = self._rng.standard_normal((_BLOCK, 5)) @ self._noise_factor_t
-        self._noise = np.hstack([noise, noise @ self._out.T + self._mean])
+        noise = np.hstack([noise, noise @ self._out.T + self._mean])
+        self._winds = [tuple(row) for row in _dryden_block(self._transition, self._state, noise).tolist()]
         self._index = 0
 
     def step(self) -> np.ndarray:
@@ -215,10 +218,12 @@ class DrydenWind:
             raise RuntimeError("DrydenWind.step() called before reset(rng)")
         if self._calm:
             return self._mean_tuple
-        if self._index == len(self._noise):
+        index = self._index
+        if index == len(self._winds):
             self._refill()
-        wind = self._velocity = _dryden_step(self._transition, self._state, self._noise, self._index)
-        self._index += 1
+            index = 0
+        wind = self._velocity = self._winds[index]
+        self._index = index + 1
         return wind
 
     @property
@@ -254,10 +259,14 @@ def random_mean_wind(rng: np.random.Generator, speed_range) -> list[float]:
 
 
 @njit(cache=True)
-def _dryden_step(transition, state, noise, index):  # pragma: no cover (compiled)
-    """One step of the discretised filter: z = [Ad; out Ad] x + noise[index] (`DrydenWind._build_filter`); the
-    state x becomes z[:5] (in place) and the wind z[5:] is returned as 3 floats. BLAS's product, as numpy's."""
-    z = np.dot(transition, state)
-    z += noise[index]
-    state[:] = z[:5]
-    return z[5], z[6], z[7]
+def _dryden_block(transition, state, noise):  # pragma: no cover (compiled)
+    """The winds of len(noise) steps of the discretised filter: per step z = [Ad; out Ad] x + noise[k]
+    (`DrydenWind._build_filter`), the state x becomes z[:5] (in place) and the wind is z[5:] (row k of the
+    result). BLAS's product, as numpy's."""
+    winds = np.empty((noise.shape[0], 3))
+    for k in range(noise.shape[0]):
+        z = np.dot(transition, state)
+        z += noise[k]
+        state[:] = z[:5]
+        winds[k] = z[5:]
+    return winds
