@@ -88,3 +88,18 @@ def test_flat_observations_are_gymnasiums_flattening_of_the_dict_and_fly_the_sam
 def test_observation_format_is_validated():
     with pytest.raises(ValueError, match="observation_format"):
         gym.make("ftcgym/Quadrotor-v0", observation_format="tuple")
+
+
+@pytest.mark.parametrize("physics_hz, agent_hz", [(500, 500), (240, 30)])
+def test_a_non_finite_physics_state_stops_the_step_before_it_reaches_the_rotors(physics_hz, agent_hz):
+    """The physics loop keeps PyBullet's state as it comes; a NaN in it raises at the next physics step's loads
+    (240/30: eight substeps) or at the agent step's conversion (500/500), and the rotors never see it."""
+    from ftcgym.envs.world import p
+    env = gym.make("ftcgym/Quadrotor-v0", physics_hz=physics_hz, agent_hz=agent_hz)
+    env.reset(seed=0)
+    world = env.unwrapped.world
+    p.resetBaseVelocity(world.body, [float("nan"), 0.0, 0.0], [0.0, 0.0, 0.0], physicsClientId=world.client)
+    with pytest.raises(FloatingPointError, match="physics state became non-finite"):
+        env.step(np.full(4, 0.5, np.float32))
+    assert np.isfinite(env.unwrapped.rotors.state).all()
+    env.close()

@@ -13,9 +13,11 @@ import numpy as np
 from gymnasium import spaces
 
 from ..models.checks import POSITIVE, Range, no_unknown, number, real_array
+from ..models.compiled import without_dispatch
 from ..models.constants import GRAVITY
 from ..models.tasks import make_task
 from ..models.wind import DrydenWind
+from .frames import RAW_EXAMPLE, body_state, step_state
 from .world import PyBulletWorld
 
 RENDER_SIZE = (480, 360)     # pixels, width x height of an rgb_array frame
@@ -29,8 +31,9 @@ class FaultAfterEndWarning(UserWarning):
 class FlightEnv(gym.Env):
     """Base class. Subclasses set the class constants, call `_setup` first in `__init__`, and implement
     `_make_params(vehicle, overrides)`, `_parse_faults(faults)`, `_build_vehicle()` (the parts made from
-    `self.params`), `_physics_step()`, `_observe()` and `_apply_faults()` (the faults in force from `self.time`
-    on); `reset` starts with `_begin_episode(seed, options)`.
+    `self.params`; it sets `_bullet_loads`, `_run_physics`'s compiled call), `_loads_arguments()`, `_observe()`
+    and `_apply_faults()` (the faults in force from `self.time` on); `reset` starts with
+    `_begin_episode(seed, options)`.
 
     `reset(options=...)` takes `faults`, `wind` and `vehicle_overrides` for one episode (RESET_OPTIONS): each
     is validated as the `gym.make` keyword of the same name and stands in for it until the next reset; a reset
@@ -58,6 +61,7 @@ class FlightEnv(gym.Env):
         self.physics_hz, self.agent_hz = check_rates(physics_hz, agent_hz)
         self.substeps = int(round(self.physics_hz / self.agent_hz))
         self.dt = 1.0 / self.physics_hz
+        self._step_state = without_dispatch(step_state, RAW_EXAMPLE, RAW_EXAMPLE, self.dt, GRAVITY)
         self.max_episode_seconds = number(max_episode_seconds, "max_episode_seconds", POSITIVE)
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise ValueError(f"render_mode: {render_mode!r}; accepted: None, {self.metadata['render_modes']}")
@@ -173,9 +177,8 @@ class FlightEnv(gym.Env):
     def _advance(self):
         """Run the physics substeps of one agent step; (observation, terminated, truncated)."""
         self._check_open("step")
-        for _ in range(self.substeps):
-            self._physics_step()
-        self._set_specific_force()      # read per agent step only (sensors), so not computed per physics step
+        self._run_physics(self.substeps)
+        self._set_state()
         obs = self._format(self._observe())
         self._check_crash()
         terminated = self._crashed
@@ -184,40 +187,47 @@ class FlightEnv(gym.Env):
             self.render()
         return obs, terminated, truncated
 
-    def _integrate_world(self, loads_ned) -> None:
-        """One physics step with the force and moment in the world frame (NED), `loads_ned` = (fx, fy, fz, mx, my,
-        mz, ...) as `physics_loads` returns them; then the faults of the new time and the state.
+    def _run_physics(self, steps: int) -> None:
+        """`steps` physics steps: per step the wind, the vehicle's compiled loads on the state as PyBullet gives it
+        (`_bullet_loads(*_loads_arguments(), state, wind, rotor angles)`: force and torque in PyBullet's world
+        frame, then what the vehicle keeps of them, `_keep_loads`), PyBullet's step, then the faults of the new
+        time (`_apply_faults`).
 
-        The physics step works on plain floats (`_p`, `_v`, `_q`, `_Rm` row-major, `_w`: position, velocity,
-        quaternion, rotation matrix and body rates; `_pos`, `_vel`, ... give them as arrays)."""
-        self._vb, self._Rb = self._v, self._Rm      # the step's start, for `_set_specific_force`
-        self.world.step(loads_ned, self._p)
-        self._physics_steps += 1
-        self.time = self._physics_steps / self.physics_hz  # counted, so it never drifts
-        self._apply_faults()
-        self._read_state()
+        The state stays in PyBullet's form here (`_raw`, `PyBulletWorld.read_raw`), and the loop's objects in
+        local names: this loop is most of the step at 240 Hz physics and 30 Hz control. `_set_state` converts
+        the state once per agent step."""
+        loads, arguments, angles = self._bullet_loads, self._loads_arguments(), self.sensors.rotor_angles
+        world, wind, apply_faults, rate = self.world, self.wind, self._apply_faults, self.physics_hz
+        raw, count = self._raw, self._physics_steps
+        for _ in range(steps):
+            air = wind.advance()
+            out = loads(*arguments, raw, air, angles)
+            raw_before, raw = raw, world.advance(out[0], out[1], raw[0])
+            count += 1
+            self._physics_steps, self.time = count, count / rate      # counted, so it never drifts
+            apply_faults()
+        self._raw, self._raw_before, self._wind = raw, raw_before, air
+        self._keep_loads(out)
 
-    def _set_specific_force(self) -> None:
-        """The specific force `_sf` over the last physics step (`_advance` calls it after its substeps).
+    def _keep_loads(self, loads: tuple) -> None:
+        """What the vehicle keeps of the last physics step's compiled loads (nothing by default)."""
 
-        An IMU measures the specific force over the interval: (dv/dt - g) in the body frame. PyBullet's
-        semi-implicit step applies the force set with the attitude R at the step's start, so R (not the
-        attitude after the step) maps it back exactly; contact forces are included."""
-        dt, v, v_before, R = self.dt, self._v, self._vb, self._Rb
-        d0, d1, d2 = (v[0] - v_before[0]) / dt, (v[1] - v_before[1]) / dt, (v[2] - v_before[2]) / dt - GRAVITY
-        self._sf = (R[0] * d0 + R[3] * d1 + R[6] * d2, R[1] * d0 + R[4] * d1 + R[7] * d2,
-                    R[2] * d0 + R[5] * d1 + R[8] * d2)
+    def _set_state(self) -> None:
+        """The state after the last physics step in NED / FRD as plain floats: `_p`, `_v`, `_q`, `_Rm`
+        (row-major), `_w` (body rates), `_vb` (the velocity before that step) and `_sf`, the IMU's specific force
+        over it (`frames.step_state`); `_pos`, `_vel`, ... give them as arrays."""
+        (self._p, self._q, self._Rm, self._v, self._w, self._vb,
+         self._sf) = self._step_state(self._raw, self._raw_before, self.dt, GRAVITY)
 
     def _read_state(self) -> None:
-        """One read of the body's state (`PyBulletWorld.read`); body rates R^T omega."""
-        self._p, self._q, R, self._v, (a, b, c) = self.world.read()
-        self._Rm = R
-        self._w = (R[0] * a + R[3] * b + R[6] * c, R[1] * a + R[4] * b + R[7] * c, R[2] * a + R[5] * b + R[8] * c)
+        """Read the body's state from the world (`_raw`) and set it in NED / FRD as `_set_state` does."""
+        self._raw = self.world.read_raw()
+        self._p, self._q, self._Rm, self._v, self._w = body_state(self._raw)
 
     def _at_rest_readings(self) -> None:
         """Velocity history and specific force of a body at rest (reset's last step)."""
         self._read_state()
-        self._vb = self._v
+        self._raw_before, self._vb = self._raw, self._v
         R, g = self._Rm, -GRAVITY
         self._sf = (R[0] * -0.0 + R[3] * -0.0 + R[6] * g, R[1] * -0.0 + R[4] * -0.0 + R[7] * g,
                     R[2] * -0.0 + R[5] * -0.0 + R[8] * g)

@@ -7,7 +7,10 @@ R_ned_frd = T R_pb T, i.e. the quaternion (x, y, z, w) -> (x, -y, -z, w).
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit
 
 T_FLIP = np.array([1.0, -1.0, -1.0])  # diag(T): PyBullet <-> NED / FRD for vectors
 
@@ -25,3 +28,42 @@ def quat_to_ned(q_pb) -> np.ndarray:
 def quat_from_ned(q_ned) -> tuple:
     """Inverse of `quat_to_ned` (the map is its own inverse)."""
     return (float(q_ned[0]), -float(q_ned[1]), -float(q_ned[2]), float(q_ned[3]))
+
+
+@njit(cache=True)
+def body_state(raw):  # pragma: no cover (compiled)
+    """The state of a body as PyBullet gives it, `raw` = (position, quaternion, velocity, angular velocity, rotation
+    matrix row by row) in its world frame (`PyBulletWorld.read_raw`), in NED / FRD: position, quaternion, rotation
+    matrix (9 entries row by row), velocity and body rates R^T omega, as tuples of floats. Sign flips only (T R T
+    and the quaternion map above), then the body rates. Raises FloatingPointError if the state is not finite."""
+    (x, y, z), (qx, qy, qz, qw), (u, v, w), (a, b, g), m = raw
+    if not math.isfinite(x + y + z + u + v + w + a + b + g + qx + qy + qz + qw):
+        raise FloatingPointError("physics state became non-finite; please report this as a bug")
+    R = (m[0], -m[1], -m[2], -m[3], m[4], m[5], -m[6], m[7], m[8])
+    b, g = -b, -g
+    rates = (R[0] * a + R[3] * b + R[6] * g, R[1] * a + R[4] * b + R[7] * g, R[2] * a + R[5] * b + R[8] * g)
+    return (x, -y, -z), (qx, -qy, -qz, qw), R, (u, -v, -w), rates
+
+
+@njit(cache=True)
+def step_state(raw, raw_before, dt, gravity):  # pragma: no cover (compiled)
+    """`body_state` of `raw`, the state after a physics step of `dt` s, then the velocity before it (from
+    `raw_before`) and the specific force over it, (dv/dt - g) in the body frame with the attitude R at the
+    step's start: PyBullet's semi-implicit step applies the force set with that attitude, so R (not the attitude
+    after the step) maps it back exactly; contact forces are included."""
+    p, q, R_after, v, rates = body_state(raw)
+    _, _, R, v_before, _ = body_state(raw_before)
+    d0, d1, d2 = (v[0] - v_before[0]) / dt, (v[1] - v_before[1]) / dt, (v[2] - v_before[2]) / dt - gravity
+    specific_force = (R[0] * d0 + R[3] * d1 + R[6] * d2, R[1] * d0 + R[4] * d1 + R[7] * d2,
+                      R[2] * d0 + R[5] * d1 + R[8] * d2)
+    return p, q, R_after, v, rates, v_before, specific_force
+
+
+@njit(cache=True)
+def to_bullet(loads_ned):  # pragma: no cover (compiled)
+    """(force, torque) in PyBullet's world frame from `loads_ned` = (fx, fy, fz, mx, my, mz, ...) NED."""
+    return (loads_ned[0], -loads_ned[1], -loads_ned[2]), (loads_ned[3], -loads_ned[4], -loads_ned[5])
+
+
+#: a state in `PyBulletWorld.read_raw`'s form, to fix the types of the calls that take one (`without_dispatch`)
+RAW_EXAMPLE = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (1.0, 0.0, 0.0) * 3)

@@ -29,6 +29,7 @@ import numpy as np
 from gymnasium import spaces
 from numba import njit
 
+from ..models.compiled import without_dispatch
 from ..models.faults import QUADPLANE_KINDS, FaultSchedule, parse_faults, resolve
 from ..models.geometry import quat_from_euler
 from ..models.pusher import THRUST, TORQUE, PusherMotor, pusher_step
@@ -45,6 +46,7 @@ from ..models.sensors import (
 from ..models.vsqp import make_vsqp_params
 from .action_space import ActionBox
 from .flight_env import RENDER_SIZE, FlightEnv, check_action
+from .frames import RAW_EXAMPLE, body_state, to_bullet
 from .visuals import QuadPlaneLook
 
 #: the sensors (observation keys) a sensor fault may target, with their sizes
@@ -117,6 +119,10 @@ class QuadPlaneEnv(FlightEnv):
         self.sensors = QuadPlaneSensors(self._sensor_config, p.hover_omega, 1.0 / self.agent_hz, limits)
         self._surface_limit = np.broadcast_to(np.asarray(p.surface_limit, dtype=float), (3,)).copy()
         self._rest_height = 0.5 * float(p.body_size[2])
+        # the physics step's compiled call, its argument types fixed here (`frames.without_dispatch`)
+        self._bullet_loads = without_dispatch(
+            bullet_loads, self.hover_rotors.state, self._controls, self._motion, self.aero.constants,
+            self.pusher.state, self.pusher.constants, self._loads_params, RAW_EXAMPLE, (0.0, 0.0, 0.0), np.zeros(4))
 
     def _make_observation_space(self, params) -> spaces.Dict:
         big, fast = 1e4, self.MAX_SPEED
@@ -177,14 +183,15 @@ class QuadPlaneEnv(FlightEnv):
         controls[AILERON_CMD:SKEW_CMD] = command[5:8] * self._surface_limit
         controls[SKEW_CMD] = float(command[8]) * 0.5 * np.pi
 
-    def _physics_step(self) -> None:
-        """Wind, then the actuators, the air velocity and the loads on the body (`physics_loads`, compiled)."""
-        wind = self._wind = self.wind.advance()
-        loads = physics_loads(self.hover_rotors.state, self._controls, self._motion, self.aero.constants,
-                              self.pusher.state, self.pusher.constants, self._loads_params, self._Rm, self._v,
-                              self._w, wind, self.sensors.rotor_angles)
-        self._integrate_world(loads)          # loads[:6]; the air velocity follows
-        self._air_body = loads[6:]
+    def _loads_arguments(self) -> tuple:
+        """`bullet_loads`' arguments before the state: hover rotors, controls, wing and surfaces, aerodynamic
+        constants, pusher and the constants of the step."""
+        return (self.hover_rotors.state, self._controls, self._motion, self.aero.constants, self.pusher.state,
+                self.pusher.constants, self._loads_params)
+
+    def _keep_loads(self, loads: tuple) -> None:
+        """The body air velocity the last physics step's loads were computed with."""
+        self._air_body = loads[2]
 
     @property
     def skew(self) -> float:
@@ -245,6 +252,18 @@ class QuadPlaneEnv(FlightEnv):
             }
         info.update(self._outcome())
         return info
+
+
+@njit(cache=True)
+def bullet_loads(rotors, controls, motion, aero, pusher, pusher_constants, params, raw, wind,
+                 angles):  # pragma: no cover (compiled)
+    """`physics_loads` on the state as PyBullet gives it (`raw`, `frames.body_state`): the force and torque
+    PyBullet takes (`frames.to_bullet`), then the body air velocity (u, v, w)."""
+    _, _, R_rows, v, rates = body_state(raw)
+    loads = physics_loads(rotors, controls, motion, aero, pusher, pusher_constants, params, R_rows, v, rates, wind,
+                          angles)
+    force, torque = to_bullet(loads)
+    return force, torque, (loads[6], loads[7], loads[8])
 
 
 @njit(cache=True)

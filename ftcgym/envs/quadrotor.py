@@ -25,6 +25,7 @@ import numpy as np
 from gymnasium import spaces
 from numba import njit
 
+from ..models.compiled import without_dispatch
 from ..models.faults import FaultSchedule, parse_faults, resolve
 from ..models.geometry import quat_from_euler
 from ..models.quadrotor import YAW_SIGNS, make_params
@@ -41,6 +42,7 @@ from ..models.sensors import (
 )
 from .action_space import ActionBox
 from .flight_env import RENDER_SIZE, FlightEnv, check_command
+from .frames import RAW_EXAMPLE, body_state, to_bullet
 from .visuals import QuadrotorLook
 
 #: the sensors (observation keys) a sensor fault may target, with their sizes
@@ -97,6 +99,10 @@ class QuadrotorEnv(FlightEnv):
                                        *rotors.gains(self.dt), *p.body_drag,
                                        *np.ravel(np.column_stack([p.rotational_drag, p.rotational_drag_quadratic]))],
                                       dtype=float)
+        # the physics step's compiled call, its argument types fixed here (omega_cmd and the rotor angles: four
+        # float64 each; the wind: three floats)
+        self._bullet_loads = without_dispatch(bullet_loads, rotors.state, rotors.geometry, np.zeros(4),
+                                              self._loads_params, RAW_EXAMPLE, (0.0, 0.0, 0.0), np.zeros(4))
 
     # ----------------------------------------------------------------------------------------- spaces
     def _make_observation_space(self, params) -> spaces.Dict:
@@ -154,13 +160,10 @@ class QuadrotorEnv(FlightEnv):
         reward = self._reward(effort)
         return obs, reward, terminated, truncated, self._info()
 
-    def _physics_step(self) -> None:
-        """Rotors, wind, the rotor wrench plus body and rotational drag (`physics_loads`, compiled)."""
-        wind = self._wind = self.wind.advance()
+    def _loads_arguments(self) -> tuple:
+        """`bullet_loads`' arguments before the state: the rotors, the speed commands and the constants."""
         rotors = self.rotors
-        loads = physics_loads(rotors.state, rotors.geometry, self._omega_cmd, self._loads_params, self._Rm,
-                              self._v, self._w, wind, self.sensors.rotor_angles)
-        self._integrate_world(loads)
+        return rotors.state, rotors.geometry, self._omega_cmd, self._loads_params
 
     def _apply_faults(self) -> None:
         """Set the rotor and mass faults in force from `self.time` on (so info at t shows what acts next)."""
@@ -236,6 +239,14 @@ def rotor_command(command, low, span, omega_cmd):  # pragma: no cover (compiled)
         omega_cmd[i] = low + u * span
         effort += u * u
     return effort
+
+
+@njit(cache=True)
+def bullet_loads(rotors, geometry, command, params, raw, wind, angles):  # pragma: no cover (compiled)
+    """`physics_loads` on the state as PyBullet gives it (`raw`, `frames.body_state`), returned as the force and
+    torque PyBullet takes (`frames.to_bullet`)."""
+    _, _, R_rows, v, rates = body_state(raw)
+    return to_bullet(physics_loads(rotors, geometry, command, params, R_rows, v, rates, wind, angles))
 
 
 @njit(cache=True)

@@ -1,13 +1,13 @@
 """The PyBullet world of one vehicle: a client, the ground and one rigid body, rebuilt on every reset.
 
 Bodies are built from the parameter set (box collision shape, mass, principal inertia), not URDF tags,
-so every number stays visible in `vehicles.py`. All inputs and outputs are NED / FRD (see `frames`).
+so every number stays visible in `vehicles.py`. Inputs and outputs are NED / FRD (see `frames`), except the
+physics step's (`advance`, `read_raw`): it stays in PyBullet's frame, which `frames` maps once per agent step.
 """
 from __future__ import annotations
 
 import contextlib
 import ctypes
-import math
 import os
 import sys
 import weakref
@@ -106,36 +106,26 @@ class PyBulletWorld:
         """
         p.changeDynamics(self.body, -1, mass=mass, localInertiaDiagonal=self.inertia, physicsClientId=self.client)
 
-    def state(self):
-        """Position (NED), quaternion (FRD->NED, x y z w), rotation matrix (FRD->NED), velocity (NED) and
-        angular velocity (NED) as arrays (`read`'s values); raises FloatingPointError if the physics produced a
-        non-finite state."""
-        pos, quat, R, vel, ang = self.read()
-        return np.array(pos), np.array(quat), np.array(R).reshape(3, 3), np.array(vel), np.array(ang)
+    def read_raw(self) -> tuple:
+        """The body's state as PyBullet gives it, in its world frame (z up): (position, quaternion x y z w,
+        velocity, angular velocity, rotation matrix row by row), tuples of floats; `frames.body_state` gives it in
+        NED / FRD. The physics step keeps the state in this form and converts it once per agent step."""
+        c = self.client
+        position, orientation = _get_pose(self.body, c)      # (bodyUniqueId, physicsClientId)
+        velocity, rates = _get_velocity(self.body, c)
+        return position, orientation, velocity, rates, _get_matrix(orientation)   # the matrix: no client needed
 
-    def read(self):
-        """The body's state as plain floats, one read per physics step: position (NED, 3-tuple), quaternion
-        (FRD->NED, x y z w), rotation matrix (FRD->NED, row-major 9-tuple), velocity (NED) and angular velocity
-        (NED); raises FloatingPointError if the physics produced a non-finite state. The values are those of
-        `vec_to_ned`, `quat_to_ned` and `T R_pb T` exactly (sign flips only)."""
-        c, body = self.client, self.body
-        (x, y, z), orn = _get_pose(body, c)           # (bodyUniqueId, physicsClientId)
-        (u, v, w), (a, b, g) = _get_velocity(body, c)
-        if not math.isfinite(x + y + z + u + v + w + a + b + g + orn[0] + orn[1] + orn[2] + orn[3]):
-            raise FloatingPointError("physics state became non-finite; please report this as a bug")
-        m = _get_matrix(orn)                          # plain arithmetic: no client needed
-        return ((x, -y, -z), (orn[0], -orn[1], -orn[2], orn[3]),
-                (m[0], -m[1], -m[2], -m[3], m[4], m[5], -m[6], m[7], m[8]), (u, -v, -w), (a, -b, -g))
-
-    def step(self, loads_ned, position_ned) -> None:
-        """Apply a force at the centre of mass and a torque, `loads_ned` = (fx, fy, fz, mx, my, mz) in the world
-        frame (NED; entries past these six are ignored), then advance one physics step."""
+    def advance(self, force, torque, position) -> tuple:
+        """One physics step: apply `force` at `position` (the centre of mass) and `torque`, all in PyBullet's world
+        frame (`frames.to_bullet`), step, and return the new state as `read_raw` does."""
         c, body = self.client, self.body
         # (objectUniqueId, linkIndex, force or torque, [position,] flags, physicsClientId)
-        _apply_force(body, -1, (loads_ned[0], -loads_ned[1], -loads_ned[2]),
-                     (position_ned[0], -position_ned[1], -position_ned[2]), _WORLD_FRAME, c)
-        _apply_torque(body, -1, (loads_ned[3], -loads_ned[4], -loads_ned[5]), _WORLD_FRAME, c)
+        _apply_force(body, -1, force, position, _WORLD_FRAME, c)
+        _apply_torque(body, -1, torque, _WORLD_FRAME, c)
         _step(c)
+        position, orientation = _get_pose(body, c)
+        velocity, rates = _get_velocity(body, c)
+        return position, orientation, velocity, rates, _get_matrix(orientation)
 
     def touching_ground(self) -> bool:
         return bool(p.getContactPoints(self.body, self.ground, physicsClientId=self.client))

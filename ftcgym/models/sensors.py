@@ -21,6 +21,7 @@ import numpy as np
 from numba import njit
 
 from .checks import Range, no_unknown, number
+from .compiled import without_dispatch
 from .constants import GRAVITY
 
 GYRO_LIMIT = np.deg2rad(2000.0)   # rad/s, MPU-6050 full scale (000 Fig. 5)
@@ -115,6 +116,13 @@ class QuadrotorSensors:
         self._row = 0
         self._count = 0
         self._held = np.zeros(6)         # position and velocity, sampled and held
+        # `_sample` for this episode's arrays (`sample` passes the state as tuples of floats, omega and the tail as
+        # float64 arrays)
+        three = (0.0, 0.0, 0.0)
+        self._sample = without_dispatch(
+            _sample, np.zeros(self._scales.size), self._phase, np.zeros(4), self._omega_ref2, self._gyro_vib_dirs,
+            self._accel_vib_dirs, self._biases, self._limits, self._held, True, three, three, (0.0, 0.0, 0.0, 1.0),
+            three, three, _NO_TAIL)
 
     rotor_angles = property(lambda self: self._phase, doc="the rotors' angles (rad), in place (`advance_phase`)")
 
@@ -136,7 +144,7 @@ class QuadrotorSensors:
         self._row = row + 1
         count = self._count
         self._count = count + 1
-        return _sample(self._noise[row], self._phase, omega, self._omega_ref2, self._gyro_vib_dirs,
+        return self._sample(self._noise[row], self._phase, omega, self._omega_ref2, self._gyro_vib_dirs,
                        self._accel_vib_dirs, self._biases, self._limits, self._held, count % self._hold_steps == 0,
                        position, velocity, quat, body_rates, specific_force, tail)
 

@@ -29,6 +29,7 @@ draws nothing. Give the wind its own child generator if other components share a
 """
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -155,6 +156,7 @@ class DrydenWind:
         self._airspeed = _positive(airspeed, "airspeed", _AIRSPEED)
         self._calm = not np.any(self._sigmas > 0.0)
         self._rng = None
+        self._stream = _not_reset()          # the winds step after step (`reset`)
         self._velocity = self._mean.copy()
         self._mean_tuple = tuple(self._mean.tolist())
         if not self._calm:
@@ -172,8 +174,6 @@ class DrydenWind:
         self._transition = np.vstack([ad, out @ ad])
         self._out = out
         self._state = np.zeros(5)
-        self._winds: list[tuple] = []    # the next steps' winds (`_refill`), from `_index` on
-        self._index = 0
 
     @classmethod
     def from_config(cls, config: dict | None, dt: float) -> DrydenWind:
@@ -192,21 +192,25 @@ class DrydenWind:
         self._rng = rng
         if self._calm:
             self._velocity = self._mean.copy()
+            self._stream = itertools.repeat(self._mean_tuple)
             return self._velocity.copy()
         self._state = self._init_factor @ rng.standard_normal(5)
         self._velocity = self._out @ self._state + self._mean
-        self._winds = []  # discard winds drawn before this reset
-        self._index = 0
+        self._stream = self._turbulent_winds()   # winds drawn before this reset are discarded
         return self._velocity.copy()
 
-    def _refill(self) -> None:
+    def _turbulent_winds(self):
+        """The winds step after step, drawn and filtered `_BLOCK` steps at a time (`_block`)."""
+        while True:
+            yield from self._block()
+
+    def _block(self) -> list[tuple]:
         """The winds of the next _BLOCK steps: draw their process noise, pre-mapped to [w; out w + mean] rows, and
         run the filter over the block in one compiled loop (the turbulence does not depend on the vehicle, so
         it can run ahead of the physics; `_state` is then the block's last state)."""
         noise = self._rng.standard_normal((_BLOCK, 5)) @ self._noise_factor_t
         noise = np.hstack([noise, noise @ self._out.T + self._mean])
-        self._winds = [tuple(row) for row in _dryden_block(self._transition, self._state, noise).tolist()]
-        self._index = 0
+        return [tuple(row) for row in _dryden_block(self._transition, self._state, noise).tolist()]
 
     def step(self) -> np.ndarray:
         """Advance by dt; return the wind velocity (3,) NED m/s as a new array."""
@@ -214,16 +218,7 @@ class DrydenWind:
 
     def advance(self) -> tuple:
         """`step` returning the wind as a tuple of 3 floats (the physics loop's form)."""
-        if self._rng is None:
-            raise RuntimeError("DrydenWind.step() called before reset(rng)")
-        if self._calm:
-            return self._mean_tuple
-        index = self._index
-        if index == len(self._winds):
-            self._refill()
-            index = 0
-        wind = self._velocity = self._winds[index]
-        self._index = index + 1
+        wind = self._velocity = next(self._stream)
         return wind
 
     @property
@@ -256,6 +251,12 @@ def random_mean_wind(rng: np.random.Generator, speed_range) -> list[float]:
     """A horizontal mean wind (NED, m/s): speed uniform in `speed_range` = (lo, hi), direction uniform."""
     speed, direction = rng.uniform(*speed_range), rng.uniform(0.0, 2.0 * np.pi)
     return [float(speed * np.cos(direction)), float(speed * np.sin(direction)), 0.0]
+
+
+def _not_reset():
+    """The winds of a `DrydenWind` not yet reset: none."""
+    raise RuntimeError("DrydenWind.step() called before reset(rng)")
+    yield  # a generator: the error comes at the first step, not here
 
 
 @njit(cache=True)
