@@ -54,6 +54,7 @@ TURBULENCE_PRESETS: dict[str, dict] = {
 CONFIG_KEYS = ("mean", "turbulence", "airspeed")
 _TURBULENCE_KEYS = ("sigmas", "lengths")
 _BLOCK = 1024          # noise steps drawn per refill: amortises the rng/matmul call overhead
+_CHUNK = 64            # steps filtered per compiled call (`DrydenWind._turbulent_winds`)
 _CALM_HORIZONTAL = 1e-9  # m/s; below this the mean wind has no direction and u points north
 
 
@@ -200,17 +201,16 @@ class DrydenWind:
         return self._velocity.copy()
 
     def _turbulent_winds(self):
-        """The winds step after step, drawn and filtered `_BLOCK` steps at a time (`_block`)."""
+        """The winds step after step. The process noise is drawn `_BLOCK` steps at a time, pre-mapped to
+        [w; out w + mean] rows; the filter runs over it `_CHUNK` steps at a time in one compiled loop
+        (`_dryden_block`: the turbulence does not depend on the vehicle, so it can run ahead of the physics),
+        so an episode ended early pays for few steps it does not fly."""
         while True:
-            yield from self._block()
-
-    def _block(self) -> list[tuple]:
-        """The winds of the next _BLOCK steps: draw their process noise, pre-mapped to [w; out w + mean] rows, and
-        run the filter over the block in one compiled loop (the turbulence does not depend on the vehicle, so
-        it can run ahead of the physics; `_state` is then the block's last state)."""
-        noise = self._rng.standard_normal((_BLOCK, 5)) @ self._noise_factor_t
-        noise = np.hstack([noise, noise @ self._out.T + self._mean])
-        return [tuple(row) for row in _dryden_block(self._transition, self._state, noise).tolist()]
+            noise = self._rng.standard_normal((_BLOCK, 5)) @ self._noise_factor_t
+            noise = np.hstack([noise, noise @ self._out.T + self._mean])
+            for start in range(0, _BLOCK, _CHUNK):
+                winds = _dryden_block(self._transition, self._state, noise[start:start + _CHUNK])
+                yield from [tuple(row) for row in winds.tolist()]
 
     def step(self) -> np.ndarray:
         """Advance by dt; return the wind velocity (3,) NED m/s as a new array."""
