@@ -99,6 +99,7 @@ class QuadrotorSensors:
             np.full(3, c.position_noise), np.full(3, c.velocity_noise), np.full(n_rotors, c.rotor_speed_noise)])
         lim = self.limits
         self._limits = np.array([_GYRO_LIMIT, _ACCEL_LIMIT, lim.position, lim.velocity, lim.rotor_speed])
+        self._sample = None              # `_sample` compiled for this instance's argument types (first `reset`)
 
     def reset(self, rng: np.random.Generator) -> None:
         c = self.config
@@ -116,13 +117,12 @@ class QuadrotorSensors:
         self._row = 0
         self._count = 0
         self._held = np.zeros(6)         # position and velocity, sampled and held
-        # `_sample` for this episode's arrays (`sample` passes the state as tuples of floats, omega and the tail as
-        # float64 arrays)
-        three = (0.0, 0.0, 0.0)
-        self._sample = without_dispatch(
-            _sample, np.zeros(self._scales.size), self._phase, np.zeros(4), self._omega_ref2, self._gyro_vib_dirs,
-            self._accel_vib_dirs, self._biases, self._limits, self._held, True, three, three, (0.0, 0.0, 0.0, 1.0),
-            three, three, _NO_TAIL)
+        if self._sample is None:         # every episode's arrays are made alike: their types are the first's
+            three = (0.0, 0.0, 0.0)
+            self._sample = without_dispatch(
+                _sample, np.zeros(self._scales.size), self._phase, np.zeros(4), self._omega_ref2,
+                self._gyro_vib_dirs, self._accel_vib_dirs, self._biases, self._limits, self._held, True, three, three,
+                (0.0, 0.0, 0.0, 1.0), three, three, _NO_TAIL)
 
     rotor_angles = property(lambda self: self._phase, doc="the rotors' angles (rad), in place (`advance_phase`)")
 
