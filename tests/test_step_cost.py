@@ -133,3 +133,23 @@ def test_a_seeded_episode_flies_the_same_whether_the_body_was_renewed_or_the_wor
     env = gym.make(env_id, max_episode_seconds=2.0)
     flights = [_episode_bits(env, seed) for seed in (3, 5, 3, 3, 7, 3)]
     assert [flight == fresh for flight in flights] == [True, False, True, True, False, True]
+
+
+def test_the_physics_loop_skips_the_faults_only_while_they_are_steady():
+    """`FaultSchedule.steady_until`: the next onset, or now while a ramp rises, a payload is added or a propulsion
+    fault acts."""
+    from ftcgym.models.faults import QUADPLANE_KINDS, FaultSchedule, parse_faults, resolve
+
+    def schedule(faults, kinds=None):
+        specs = parse_faults(faults, 4, {"gyro": 3}, *([kinds] if kinds else []))
+        return FaultSchedule(resolve(specs, np.random.default_rng(0), 4, ["gyro"]), 4)
+
+    steps = schedule([{"kind": "loe", "target": 0, "time": 1.0, "magnitude": 0.4, "rate": 0.2},
+                      {"kind": "payload", "time": 5.0, "magnitude": 0.1, "duration": 0.5},
+                      {"kind": "rotor_loss", "target": 2, "time": 8.0},
+                      {"kind": "sensor_bias", "target": "gyro", "time": 0.5, "magnitude": [0.1, 0.0, 0.0]}])
+    assert [steps.steady_until(t) for t in (0.0, 0.99, 1.0, 2.9, 3.0, 4.0, 5.2, 5.5, 7.0, 8.0)] == \
+        [1.0, 1.0, 1.0, 2.9, 5.0, 5.0, 5.2, 8.0, 8.0, np.inf]     # the loe ramp ends at 3.0 s, the payload at 5.5
+    assert schedule([]).steady_until(3.0) == np.inf
+    icing = schedule([{"kind": "propeller_icing", "time": 2.0, "magnitude": 1.3, "duration": 10.0}], QUADPLANE_KINDS)
+    assert [icing.steady_until(t) for t in (1.0, 2.0, 30.0)] == [2.0, 2.0, 30.0]

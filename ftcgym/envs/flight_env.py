@@ -171,6 +171,7 @@ class FlightEnv(gym.Env):
     def _start(self, position, attitude) -> None:
         """Place the body at rest and reset the clock (reset's first step)."""
         self.time, self._physics_steps = 0.0, 0
+        self._faults_steady_until = -math.inf     # the faults are applied at the first physics step
         self.world.reset(position, attitude, np.zeros(3), np.zeros(3))
         self._crashed, self._termination = False, None
 
@@ -197,16 +198,20 @@ class FlightEnv(gym.Env):
         local names: this loop is most of the step at 240 Hz physics and 30 Hz control. `_set_state` converts
         the state once per agent step."""
         loads, arguments, angles = self._bullet_loads, self._loads_arguments(), self.sensors.rotor_angles
-        world, wind, apply_faults, rate = self.world, self.wind, self._apply_faults, self.physics_hz
-        raw, count = self._raw, self._physics_steps
+        world, wind, rate = self.world, self.wind, self.physics_hz
+        raw, count, steady_until = self._raw, self._physics_steps, self._faults_steady_until
         for _ in range(steps):
             air = wind.advance()
             out = loads(*arguments, raw, air, angles)
             raw_before, raw = raw, world.advance(out[0], out[1], raw[0])
             count += 1
-            self._physics_steps, self.time = count, count / rate      # counted, so it never drifts
-            apply_faults()
+            time = count / rate            # counted, so it never drifts
+            self._physics_steps, self.time = count, time
+            if time >= steady_until:       # else the faults act as at the last step (`FaultSchedule.steady_until`)
+                self._apply_faults()
+                steady_until = self._faults.steady_until(time)
         self._raw, self._raw_before, self._wind = raw, raw_before, air
+        self._faults_steady_until = steady_until
         self._keep_loads(out)
 
     def _keep_loads(self, loads: tuple) -> None:

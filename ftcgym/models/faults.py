@@ -251,6 +251,20 @@ class FaultSchedule:
         self._rotor_until = t if rising else min((s.time for s in self._rotor if s.time > t), default=np.inf)
         return True
 
+    def steady_until(self, t: float) -> float:
+        """The time until which the rotor, payload and propulsion faults act as they do at t: the next onset, or
+        t itself while a loss-of-effectiveness ramp rises, a payload is being added or a propulsion fault acts
+        (its factors change at every step). The physics loop applies the faults again only from then on."""
+        until = math.inf
+        for s in self._rotor + self._payload + self._propulsion:
+            if t < s.time:
+                until = min(until, s.time)
+            elif (s.kind in PROPULSION_KINDS
+                  or (s.kind == "payload" and s.duration and t < s.time + s.duration)
+                  or (s.kind in ROTOR_KINDS and s.rate is not None and s.rate * (t - s.time) < s.magnitude)):
+                return t
+        return until
+
     def added_mass(self, t: float) -> float:
         total = 0.0
         for s in self._payload:
