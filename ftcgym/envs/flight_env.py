@@ -192,7 +192,7 @@ class FlightEnv(gym.Env):
         """`steps` physics steps: per step the wind, the vehicle's compiled loads on the state as PyBullet gives it
         (`_bullet_loads(*_loads_arguments(), state, wind, rotor angles)`: force and torque in PyBullet's world
         frame, then what the vehicle keeps of them, `_keep_loads`), PyBullet's step, then the faults of the new
-        time (`_apply_faults`).
+        time (`_apply_faults`) where they change.
 
         The state stays in PyBullet's form here (`_raw`, `PyBulletWorld.read_raw`), and the loop's objects in
         local names: this loop is most of the step at 240 Hz physics and 30 Hz control. `_set_state` converts
