@@ -153,3 +153,15 @@ def test_the_physics_loop_skips_the_faults_only_while_they_are_steady():
     assert schedule([]).steady_until(3.0) == np.inf
     icing = schedule([{"kind": "propeller_icing", "time": 2.0, "magnitude": 1.3, "duration": 10.0}], QUADPLANE_KINDS)
     assert [icing.steady_until(t) for t in (1.0, 2.0, 30.0)] == [2.0, 2.0, 30.0]
+
+
+def test_a_call_bound_to_its_types_gives_the_dispatcher_s_result_and_plain_python_passes_through():
+    from ftcgym.envs.frames import RAW_EXAMPLE, body_state
+    from ftcgym.models.compiled import without_dispatch
+    raw = ((1.0, 2.0, 3.0), (0.1, -0.2, 0.3, 0.9), (4.0, 5.0, 6.0), (0.5, -0.6, 0.7), tuple(np.arange(9.0)))
+    assert without_dispatch(body_state, RAW_EXAMPLE)(raw) == body_state(raw)
+    assert body_state(raw)[0] == (1.0, -2.0, -3.0) and body_state(raw)[3] == (4.0, -5.0, -6.0)
+
+    def plain(x):
+        return 2 * x
+    assert without_dispatch(plain, 1.0) is plain
