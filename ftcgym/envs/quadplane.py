@@ -119,7 +119,7 @@ class QuadPlaneEnv(FlightEnv):
         self.sensors = QuadPlaneSensors(self._sensor_config, p.hover_omega, 1.0 / self.agent_hz, limits)
         self._surface_limit = np.broadcast_to(np.asarray(p.surface_limit, dtype=float), (3,)).copy()
         self._rest_height = 0.5 * float(p.body_size[2])
-        # the physics step's compiled call, its argument types fixed here (`frames.without_dispatch`)
+        # the physics step's compiled call, its argument types fixed here (`models.compiled.without_dispatch`)
         self._bullet_loads = without_dispatch(
             bullet_loads, self.hover_rotors.state, self._controls, self._motion, self.aero.constants,
             self.pusher.state, self.pusher.constants, self._loads_params, RAW_EXAMPLE, (0.0, 0.0, 0.0), np.zeros(4))

@@ -151,7 +151,7 @@ class PyBulletWorld:
         _apply_force(body, -1, force, position, _WORLD_FRAME, c)
         _apply_torque(body, -1, torque, _WORLD_FRAME, c)
         _step(c)
-        position, orientation = _get_pose(body, c)
+        position, orientation = _get_pose(body, c)               # `read_raw`, inline: once per physics step
         velocity, rates = _get_velocity(body, c)
         return position, orientation, velocity, rates, _get_matrix(orientation)
 
