@@ -206,10 +206,11 @@ class FlightEnv(gym.Env):
             raw_before, raw = raw, world.advance(out[0], out[1], raw[0])
             count += 1
             time = count / rate            # counted, so it never drifts
-            self._physics_steps, self.time = count, time
             if time >= steady_until:       # else the faults act as at the last step (`FaultSchedule.steady_until`)
+                self._physics_steps, self.time = count, time      # what `_apply_faults` reads
                 self._apply_faults()
                 steady_until = self._faults.steady_until(time)
+        self._physics_steps, self.time = count, time
         self._raw, self._raw_before, self._wind = raw, raw_before, air
         self._faults_steady_until = steady_until
         self._keep_loads(out)
