@@ -203,8 +203,9 @@ def test_ax_alarm_isolates_the_rpm_only_with_the_current_against_it():
 
 def test_readings_as_lists_scalars_or_strided_views_give_the_same_filter():
     """The env's float64 arrays are gathered by the compiled sample step; lists and scalars (a log's row) go
-    through `_flat`, and strided views (columns of a log's table) through the compiled step too: all alike."""
-    dets = [AirdataEkfDetector(VSQP, 100.0) for _ in range(3)]
+    through `_flat`, strided views (columns of a log's table) and other dtypes through the compiled step too,
+    an array numba cannot take (object dtype) through `_flat`: all alike."""
+    dets = [AirdataEkfDetector(VSQP, 100.0) for _ in range(5)]
     base = hover_readings(dets[0])
     table = np.zeros((3, 2))
     for k in range(600):
@@ -214,7 +215,9 @@ def test_readings_as_lists_scalars_or_strided_views_give_the_same_filter():
         table[:, 0] = readings["gyro"] + 0.01 * math.cos(3 * t)
         strided = {**readings, "gyro": table[:, 0]}             # a column: not contiguous
         plain = {key: value.tolist() if value.size > 1 else float(value[0]) for key, value in strided.items()}
-        for det, r in zip(dets, (strided, plain, {**strided, "gyro": table[:, 0].copy()})):
+        wide = {**strided, "skew": strided["skew"].astype(np.longdouble)}      # values float64 holds exactly
+        boxed = {**strided, "pusher_speed": strided["pusher_speed"].astype(object)}
+        for det, r in zip(dets, (strided, plain, {**strided, "gyro": table[:, 0].copy()}, wide, boxed)):
             det.update(r, t)
     assert dets[0].started and np.linalg.norm(dets[0].x) > 0.0
     for det in dets[1:]:

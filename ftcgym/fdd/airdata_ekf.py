@@ -73,11 +73,13 @@ Errata and departures (001 as printed):
 from __future__ import annotations
 
 import math
+import operator
 from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
 from numba import literal_unroll, njit
+from numba.core.errors import TypingError
 from scipy import signal
 
 from ..models.constants import GRAVITY
@@ -628,6 +630,10 @@ class AirdataEkfDetector:
             if sensor in self.confirmations:
                 self._confirmation_constants[k] = (*self.confirmations[sensor]._constants, 1.0)
                 self.confirmations[sensor]._state = self._confirmation_states[k]
+        # the tests' state and constants `_ekf_detect` takes after the sample's
+        self._tests = (self._detect, self._innovation_states, self._innovation_constants, self._confirmation_states,
+                       self._confirmation_constants, self._hits, self._pitot_states, self._pitot_constants,
+                       self._published)
         self.current_checks = {sensor: RpmCurrentCheck(params, sample_hz, *spec.current_check,
                                                        coefficient_error=s.coefficient_error, error_seed=s.error_seed)
                                for sensor, spec in innovation_detectors.items() if spec.current_check is not None}
@@ -636,6 +642,9 @@ class AirdataEkfDetector:
         self._current_variance = None if rpm is None else rpm.speed_from_current
         self._propulsion = (PropulsionModel(params, s.coefficient_error, s.error_seed)
                             if self._current_variance is not None else None)
+        # `update`'s readings: those of `_keys`, then the pusher current where the EKF or a current check reads it
+        reads_current = self._propulsion is not None or bool(self.current_checks)
+        self._gather = operator.itemgetter(*self._keys, *(("pusher_current",) if reads_current else ()))
         self._history_length = max([round(t * ekf_hz) for t in self.rollback.values()], default=0) + 1
         # the compiled EKF step's state (`_ekf_step`: x, P, the innovation, the pusher speed's scale and its sample
         # count, then the rows faulted and whether the pusher RPM is isolated) and constants
@@ -694,13 +703,16 @@ class AirdataEkfDetector:
         self._status = None                                  # what status() returns, when built
 
     def update(self, readings: dict, time: float, command=None) -> None:
-        current = self._pusher_current(readings)
-        parts = [readings[key] for key in self._keys]
-        # the sample s of `_ekf_cycle` (the readings of `_keys`, then the pusher current), prefiltered (Sec. 5:
-        # inputs and measurements alike), and the current checks, every sample, so their filters run before the
-        # EKF starts (each low-passes the raw pusher speed and current itself, so it also runs alone)
-        if not self._prepare_sample(parts, current):
-            self._reject_non_finite(readings, current, time)
+        try:
+            parts = self._gather(readings)                    # the readings of `_keys`, then the pusher current
+        except KeyError:
+            self._pusher_current(readings)                    # names a missing pusher current
+            raise
+        # the sample s of `_ekf_cycle`, prefiltered (Sec. 5: inputs and measurements alike), and the current
+        # checks, every sample, so their filters run before the EKF starts (each low-passes the raw pusher speed
+        # and current itself, so it also runs alone)
+        if not self._prepare_sample(parts):
+            self._reject_non_finite(readings, self._pusher_current(readings), time)
         if self.pitot_key in readings:
             self._pitot = _first(readings[self.pitot_key])
         if not self.started:
@@ -713,22 +725,21 @@ class AirdataEkfDetector:
             self._ekf(time)
             self._status = None
 
-    def _prepare_sample(self, parts: list, current) -> bool:
-        """`_prepare` on the readings `parts` and the pusher current (None where nothing reads it): float64 arrays,
-        as the env gives them, are gathered by the compiled call itself (`_prepare_arrays`), anything else
-        through `_flat`."""
+    def _prepare_sample(self, parts: tuple) -> bool:
+        """`_prepare` on the readings `parts` (the pusher current last, where it is read): arrays, as the env gives
+        them, are gathered by the compiled call itself (`_prepare_arrays`, compiled once per layout), anything else
+        (scalars, lists, a dtype numba cannot take) through `_flat`."""
         states = self._run, self._lowpass, self._check_states, self._check_constants
-        if current is None:
-            current = _NO_READING
-        elif type(current) is not np.ndarray:
-            parts = [*parts, (_first(current),)]
-            return _prepare(_flat(parts), *states)
-        for part in parts:
-            if type(part) is not np.ndarray or part.dtype is not _FLOAT64:
-                if current is not _NO_READING:
-                    parts = [*parts, (_first(current),)]
-                return _prepare(_flat(parts), *states)
-        return _prepare_arrays(*states, *parts, current)
+        if _ARRAYS.issuperset(map(type, parts)):
+            try:
+                if len(parts) == len(self._keys):
+                    return _prepare_arrays(*states, *parts, _NO_READING)
+                return _prepare_arrays(*states, *parts)
+            except TypingError:
+                pass
+        if len(parts) > len(self._keys):                      # the current's first value only
+            parts = (*parts[:-1], (_first(parts[-1]),))
+        return _prepare(_flat(parts), *states)
 
     def _reject_non_finite(self, readings: dict, current, time: float) -> None:
         """Raise the ValueError that names the first reading with a NaN or infinity."""
@@ -757,10 +768,7 @@ class AirdataEkfDetector:
         sensor's alarm (`_detect_innovation_faults`), the roll-back on a new one, then the pitot tests."""
         state, pitot, time = self._ekf_state[:EKF_HISTORY].copy(), self._pitot, float(time)
         code = _ekf_detect(self._filtered, self._ekf_state, self._ekf_constants, time - self.start_time, time,
-                           math.nan if pitot is None else pitot, pitot is not None, self._detect,
-                           self._innovation_states, self._innovation_constants, self._confirmation_states,
-                           self._confirmation_constants, self._hits, self._pitot_states, self._pitot_constants,
-                           self._published)
+                           math.nan if pitot is None else pitot, pitot is not None, *self._tests)
         if code == PITOT_NOT_FINITE:
             raise ValueError(f"airdata_ekf: reading {self.pitot_key!r} is not finite at t = {time}")
         self._history.append((time, self._filtered.copy(), state))
@@ -1110,7 +1118,7 @@ def _pitot_tests(state, residual, time, detect, pitot_states, pitot_constants): 
               armed and forward >= detect[RAMP_MIN_AIRSPEED])
 
 
-_NO_READING, _FLOAT64 = np.empty(0), np.dtype(np.float64)
+_NO_READING, _ARRAYS = np.empty(0), frozenset({np.ndarray})
 
 
 def _first(reading) -> float:
@@ -1124,7 +1132,7 @@ def _flat(parts: list) -> np.ndarray:
         flat = np.concatenate(parts, dtype=np.float64)
         if flat.ndim == 1:
             return flat
-    except ValueError:                                         # a scalar reading (a recorded log's row)
+    except (ValueError, TypeError):         # a scalar reading (a recorded log's row), an object array's numbers
         pass
     return np.concatenate([np.asarray(part, dtype=np.float64).reshape(-1) for part in parts])
 
