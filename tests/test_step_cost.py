@@ -63,12 +63,17 @@ def test_info_level_is_validated():
         gym.make("ftcgym/Quadrotor-v0", info_level="verbose")
 
 
+SENSOR_BIAS = {"kind": "sensor_bias", "target": "gyro", "time": 0.01, "magnitude": [0.1, 0.0, 0.0]}
+ROTOR_LOSS = {"kind": "rotor_loss", "target": 1, "time": 0.01}
+
+
 @pytest.mark.parametrize("env_id", ["ftcgym/Quadrotor-v0", "ftcgym/QuadPlane-v0"])
-def test_flat_observations_are_gymnasiums_flattening_of_the_dict_and_fly_the_same(env_id):
+@pytest.mark.parametrize("fault", [SENSOR_BIAS, ROTOR_LOSS], ids=["sensor-fault", "no-sensor-fault"])
+def test_flat_observations_are_gymnasiums_flattening_of_the_dict_and_fly_the_same(env_id, fault):
     """`observation_format="flat"` gives `gymnasium.spaces.flatten` of the Dict observation, in a Box that
-    contains it; with `info_level="none"` info is empty; the flight is the same."""
-    kwargs = {"wind": LIGHT_WIND, "faults": [{"kind": "sensor_bias", "target": "gyro", "time": 0.01,
-                                              "magnitude": [0.1, 0.0, 0.0]}]}
+    contains it (with no sensor fault the quadrotor reorders its sample in one indexing instead); with
+    `info_level="none"` info is empty; the flight is the same."""
+    kwargs = {"wind": LIGHT_WIND, "faults": [fault]}
     reference = gym.make(env_id, **kwargs)
     flat = gym.make(env_id, **kwargs, observation_format="flat", info_level="none")
     dict_space = flat.unwrapped.dict_observation_space
@@ -82,7 +87,7 @@ def test_flat_observations_are_gymnasiums_flattening_of_the_dict_and_fly_the_sam
     assert info_f == {} and r_f == r_d
     assert obs_f.dtype == np.float64 and flat.observation_space.contains(obs_f)
     np.testing.assert_array_equal(obs_f, flatten(reference.observation_space, obs_d))
-    np.testing.assert_array_equal(unflatten(dict_space, obs_f)["gyro"], obs_d["gyro"])   # the bias included
+    np.testing.assert_array_equal(unflatten(dict_space, obs_f)["gyro"], obs_d["gyro"])   # a bias included
 
 
 def test_observation_format_is_validated():

@@ -88,6 +88,10 @@ class FlightEnv(gym.Env):
         self._observation_keys = tuple(space.spaces)
         self.observation_space = space if self.observation_format == "dict" else spaces.flatten_space(space)
 
+    def _observation(self):
+        """The observation now, in `observation_format`."""
+        return self._format(self._observe())
+
     def _format(self, readings: dict):
         """An observation in `observation_format`."""
         if self.observation_format == "dict":
@@ -180,7 +184,7 @@ class FlightEnv(gym.Env):
         self._check_open("step")
         self._run_physics(self.substeps)
         self._set_state()
-        obs = self._format(self._observe())
+        obs = self._observation()
         self._check_crash()
         terminated = self._crashed
         truncated = not terminated and self.time >= self.max_episode_seconds - 1e-9

@@ -160,7 +160,7 @@ class QuadPlaneEnv(FlightEnv):
         self.sensors.reset(rng)
         self._at_rest_readings()
         self._air_body = air_velocity(self._R, self._v, self._wind)
-        return self._format(self._observe()), self._info()
+        return self._observation(), self._info()
 
     def _start_heading(self) -> float:
         """Nose into the mean wind, as a pilot places a VTOL for take-off (north in calm air): in quad mode

@@ -69,6 +69,10 @@ class QuadrotorEnv(FlightEnv):
                     render_mode, render_size, unknown, info_level, observation_format)
         self._sensor_config = SensorConfig.from_overrides(sensors)
         self._set_observation_space(self._make_observation_space(self.params))
+        # "flat": the sample's indices in the flat observation's (sorted key) order (`_observation`)
+        slices = {key: (start, stop) for key, start, stop in _OBSERVATION_SLICES}
+        self._flat_order = None if observation_format == "dict" else np.concatenate(
+            [np.arange(*slices[key]) for key in self._observation_keys])
         self._limits = {key: (box.low, box.high) for key, box in self.dict_observation_space.spaces.items()}
         self._build_vehicle()
         self.action_space = ActionBox(0.0, 1.0, (4,), np.float32)
@@ -142,8 +146,7 @@ class QuadrotorEnv(FlightEnv):
         self._wind = tuple(self.wind.reset(rng).tolist())
         self.sensors.reset(rng)
         self._at_rest_readings()
-        obs = self._format(self._observe())
-        return obs, self._info()
+        return self._observation(), self._info()
 
     # ----------------------------------------------------------------------------------------- step
     def step(self, action):
@@ -181,11 +184,22 @@ class QuadrotorEnv(FlightEnv):
     # ----------------------------------------------------------------------------------------- outputs
     def _observe(self) -> dict:
         """The readings and the set-point as views of one fresh array (one allocation per step)."""
-        ref = self._reference = self.task.reference(self.time)
-        flat = self.sensors.sample(self._p, self._v, self._q, self._w, self._sf, self.rotors.omega, ref.as_array)
+        flat = self._sample()
         readings = {key: flat[start:stop] for key, start, stop in _OBSERVATION_SLICES}
         faults = self._faults
         return faults.apply_to_sensors(self.time, readings) if faults.acts_on_sensors else readings
+
+    def _observation(self):
+        """At observation_format "flat" with no sensor fault scheduled, the sample put in the flat layout by one
+        indexing (`_flat_order`): the values `_format(_observe())` concatenates, without the dict of views."""
+        if self._flat_order is None or self._faults.acts_on_sensors:
+            return super()._observation()
+        return self._sample()[self._flat_order]
+
+    def _sample(self) -> np.ndarray:
+        """The sensors' readings and the task's set-point now, in `OBSERVATION`'s layout."""
+        ref = self._reference = self.task.reference(self.time)
+        return self.sensors.sample(self._p, self._v, self._q, self._w, self._sf, self.rotors.omega, ref.as_array)
 
     def _reward(self, effort: float) -> float:
         """The module docstring's reward; `effort` is the sum of the squared (clipped) commands."""
