@@ -188,6 +188,29 @@ def test_train_writes_model_statistics_checkpoints_evaluations_and_manifest(trai
     assert "eval/success_rate" in curves[0]
 
 
+def test_a_saved_model_is_read_once_per_process_until_its_files_change(trained, tmp_path):
+    """The benchmark makes a learned policy per episode: the second load shares the first's model and
+    statistics; a model file rewritten on disk is read anew."""
+    import os
+    import shutil
+
+    from ftcgym.benchmark.runner import make_env
+    from ftcgym.benchmark.scenarios import get_scenario
+    from ftcgym.training.policy import LearnedPolicy
+
+    folder = tmp_path / "copy"
+    shutil.copytree(trained, folder, ignore=shutil.ignore_patterns("checkpoints", "logs", "best"))
+    env = make_env(get_scenario("quad-rotor-loss-hover"), SHORT_EVAL)
+    first, second = LearnedPolicy.load(folder, env), LearnedPolicy.load(folder / "model.zip", env)
+    assert second.model is first.model and second.normalizer is first.normalizer
+    stat = (folder / "model.zip").stat()
+    os.utime(folder / "model.zip", ns=(stat.st_atime_ns, stat.st_mtime_ns + 1_000_000_000))
+    third = LearnedPolicy.load(folder, env)
+    assert third.model is not first.model
+    features = np.random.default_rng(1).uniform(-1, 1, (3, N_FEATURES)).astype(np.float32)
+    np.testing.assert_array_equal([third.predict(f) for f in features], [first.predict(f) for f in features])
+
+
 def test_learned_policy_loads_and_acts_deterministically(trained):
     from ftcgym.agents import make_policy
     from ftcgym.benchmark.runner import make_env

@@ -2,6 +2,7 @@
 base of the benchmark policies that fly one (`policy.LearnedPolicy`, `airspeed_task.LearnedAirspeedPolicy`)."""
 from __future__ import annotations
 
+import functools
 import json
 import pickle
 import re
@@ -45,13 +46,10 @@ class SavedModelPolicy:
     @classmethod
     def load(cls, path, env=None, **kwargs):
         """The model saved by `ftcgym train` at `path` (the output folder or its .zip) for `env`; `kwargs`
-        go to the constructor."""
-        from ftcgym.training.train import algorithm_class
-        model_path, normalizer_path, manifest_path = model_files(path)
-        manifest = json.loads(manifest_path.read_text()) if manifest_path.is_file() else {}
-        config = manifest.get("config", {})
-        model = algorithm_class(config.get("algo") or _algo_of(model_path)).load(model_path, device="cpu")
-        normalizer = load_normalizer(normalizer_path) if normalizer_path.is_file() else None
+        go to the constructor. The files are read once per process while they stay as they are
+        (`_loaded_files`): a benchmark makes a policy per episode, and loading a model costs about a second."""
+        files = model_files(path)
+        config, model, normalizer = _loaded_files(*map(str, files), _stamp(files))
         return cls(model, normalizer, config.get("env_id", cls.DEFAULT_ENV_ID), config.get("env_kwargs"), env,
                    **kwargs)
 
@@ -61,6 +59,25 @@ class SavedModelPolicy:
             observation = self.normalizer.normalize_obs(observation)
         action, _ = self.model.predict(observation, deterministic=True)
         return np.asarray(action)
+
+
+@functools.lru_cache(maxsize=8)
+def _loaded_files(model_path: str, normalizer_path: str, manifest_path: str, stamp: tuple) -> tuple:
+    """(config, model, normalizer) of a saved model's files; `stamp` (`_stamp`) keys a file changed on disk anew.
+    The model and normalizer are shared by the policies made from them: they only predict (the normalizer does
+    not update, `load_normalizer`)."""
+    from ftcgym.training.train import algorithm_class
+    manifest = json.loads(Path(manifest_path).read_text()) if Path(manifest_path).is_file() else {}
+    config = manifest.get("config", {})
+    model = algorithm_class(config.get("algo") or _algo_of(Path(model_path))).load(model_path, device="cpu")
+    normalizer = load_normalizer(normalizer_path) if Path(normalizer_path).is_file() else None
+    return config, model, normalizer
+
+
+def _stamp(files) -> tuple:
+    """(modification time ns, size) of each of `files` that exists, None for one that does not."""
+    stats = [path.stat() if path.is_file() else None for path in files]
+    return tuple(None if st is None else (st.st_mtime_ns, st.st_size) for st in stats)
 
 
 def _algo_of(model_path: Path) -> str:
