@@ -188,6 +188,26 @@ def test_train_writes_model_statistics_checkpoints_evaluations_and_manifest(trai
     assert "eval/success_rate" in curves[0]
 
 
+def test_deterministic_action_is_sb3s_predict_bit_for_bit(trained):
+    """The lean path of `SavedModelPolicy.predict` gives `model.predict`'s deterministic action, bits and
+    dtype, for float32 and float64 observations and ones far outside the clip range; other shapes go through
+    `model.predict` itself."""
+    from ftcgym.benchmark.runner import make_env
+    from ftcgym.benchmark.scenarios import get_scenario
+    from ftcgym.training.policy import LearnedPolicy
+    from ftcgym.training.saved import deterministic_action
+
+    model = LearnedPolicy.load(trained, make_env(get_scenario("quad-rotor-loss-hover"), SHORT_EVAL)).model
+    rng = np.random.default_rng(2)
+    for scale, dtype in ((1.0, np.float32), (3.0, np.float64), (100.0, np.float32)):
+        for obs in (scale * rng.standard_normal((50, N_FEATURES))).astype(dtype):
+            expected, _ = model.predict(obs, deterministic=True)
+            action = deterministic_action(model, obs)
+            assert action.dtype == expected.dtype and np.array_equal(action, expected)
+    batch = rng.standard_normal((3, N_FEATURES)).astype(np.float32)
+    np.testing.assert_array_equal(deterministic_action(model, batch), model.predict(batch, deterministic=True)[0])
+
+
 def test_a_saved_model_is_read_once_per_process_until_its_files_change(trained, tmp_path):
     """The benchmark makes a learned policy per episode: the second load shares the first's model and
     statistics; a model file rewritten on disk is read anew."""
