@@ -39,7 +39,7 @@ with _stderr_silenced():
 
 # The calls of every physics step (`read`, `step`) pass their arguments by position: PyBullet parses keywords
 # by looking each one up by name, which costs more than the call's own work for these small requests.
-_get_pose, _get_velocity, _get_matrix = p.getBasePositionAndOrientation, p.getBaseVelocity, p.getMatrixFromQuaternion
+_get_pose, _get_velocity = p.getBasePositionAndOrientation, p.getBaseVelocity
 _apply_force, _apply_torque, _step = p.applyExternalForce, p.applyExternalTorque, p.stepSimulation
 _WORLD_FRAME = p.WORLD_FRAME
 
@@ -136,12 +136,13 @@ class PyBulletWorld:
 
     def read_raw(self) -> tuple:
         """The body's state as PyBullet gives it, in its world frame (z up): (position, quaternion x y z w,
-        velocity, angular velocity, rotation matrix row by row), tuples of floats; `frames.body_state` gives it in
-        NED / FRD. The physics step keeps the state in this form and converts it once per agent step."""
+        velocity, angular velocity), tuples of floats; `frames.body_state` gives it in NED / FRD, with the
+        rotation matrix PyBullet would give (`frames.bullet_matrix`). The physics step keeps the state in this
+        form and converts it once per agent step."""
         c = self.client
         position, orientation = _get_pose(self.body, c)      # (bodyUniqueId, physicsClientId)
         velocity, rates = _get_velocity(self.body, c)
-        return position, orientation, velocity, rates, _get_matrix(orientation)   # the matrix: no client needed
+        return position, orientation, velocity, rates
 
     def advance(self, force, torque, position) -> tuple:
         """One physics step: apply `force` at `position` (the centre of mass) and `torque`, all in PyBullet's world
@@ -152,8 +153,7 @@ class PyBulletWorld:
         _apply_torque(body, -1, torque, _WORLD_FRAME, c)
         _step(c)
         position, orientation = _get_pose(body, c)               # `read_raw`, inline: once per physics step
-        velocity, rates = _get_velocity(body, c)
-        return position, orientation, velocity, rates, _get_matrix(orientation)
+        return (position, orientation, *_get_velocity(body, c))
 
     def touching_ground(self) -> bool:
         return bool(p.getContactPoints(self.body, self.ground, physicsClientId=self.client))
