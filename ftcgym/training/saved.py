@@ -76,7 +76,7 @@ def deterministic_action(model, observation) -> np.ndarray:
     if policy.training:                      # as SB3's predict, which sets it on every call
         policy.set_training_mode(False)
     with th.no_grad():
-        actions = policy._predict(th.as_tensor(np.asarray(observation)).reshape(1, -1), deterministic=True)
+        actions = policy._predict(th.as_tensor(np.asarray(observation)).reshape(1, *space.shape), deterministic=True)
     actions = actions.cpu().numpy().reshape(policy.action_space.shape)
     if policy.squash_output:
         return policy.unscale_action(actions)
