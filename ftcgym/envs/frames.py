@@ -34,7 +34,8 @@ def quat_from_ned(q_ned) -> tuple:
 def bullet_matrix(x, y, z, w):  # pragma: no cover (compiled)
     """The rotation matrix of the quaternion (x, y, z, w), row by row, as PyBullet's `getMatrixFromQuaternion`
     computes it (Bullet's btMatrix3x3::setRotation, LinearMath/btMatrix3x3.h: s = 2 / |q|^2, then the products in
-    its order), bit for bit (`tests/test_step_cost.py`)."""
+    its order), bit for bit (`tests/test_step_cost.py`). Not `models.geometry.rotation_matrix`: that one assumes a
+    unit quaternion and rounds otherwise, and the physics step must keep the matrix PyBullet gave it."""
     s = 2.0 / (x * x + y * y + z * z + w * w)
     xs, ys, zs = x * s, y * s, z * s
     wx, wy, wz = w * xs, w * ys, w * zs
