@@ -12,6 +12,8 @@ and front (r1, r2) then rear (r3, r4).
 
 Thresholds were tuned on seeds 1-6; the flights here use seeds 21-24, not used for tuning.
 """
+import math
+
 import numpy as np
 import pytest
 from conftest import LIGHT_WIND, make_env
@@ -219,6 +221,32 @@ def test_implements_the_detector_protocol():
     assert set(out) == set(det.output_fields)
     assert all(out[k].shape == det.output_fields[k][2] and out[k].dtype == np.float64 for k in out)
     assert set(det.status()) >= {"alarm", "alarm_time", "isolated", "loe"}
+
+
+def test_readings_as_lists_other_dtypes_or_strided_views_give_the_same_filter():
+    """The env's float64 arrays reach the compiled step as they are; float32, integer and strided arrays are
+    converted by it, lists and object arrays (which numba cannot take) in Python: all give the same bits."""
+    dets = [_detector() for _ in range(5)]
+    table = np.zeros((4, 2))
+    for k in range(400):
+        t = 0.002 * k
+        base = {**_readings(), "position": np.array([0.0, 0.0, -0.001 * (k // 5)]),
+                "gyro": np.array([0.01 * math.sin(9 * t), 0.0, 0.002]), "rotor_speed": np.full(4, 700.0 + k % 7)}
+        quat = np.array([0.01 * math.sin(5 * t), 0.02, 0.0, 1.0]) / math.hypot(0.01 * math.sin(5 * t), 0.02, 1.0)
+        single = {**base, "gyro": base["gyro"].astype(np.float32).astype(np.float64),   # values float32 holds
+                  "attitude": quat.astype(np.float32).astype(np.float64)}
+        table[:, 1] = single["rotor_speed"]
+        variants = (single, {**single, "gyro": single["gyro"].astype(np.float32),
+                             "attitude": single["attitude"].astype(np.float32)},
+                    {**single, "rotor_speed": table[:, 1]},                  # a column: not contiguous
+                    {key: value.tolist() for key, value in single.items()},
+                    {**single, "rotor_speed": base["rotor_speed"].astype(np.int64).astype(object)})
+        for det, readings in zip(dets, variants):
+            det.update(readings, t, np.full(4, 0.5, np.float32))
+    assert np.linalg.norm(dets[0].x[9:12]) > 0.0
+    for det in dets[1:]:
+        assert np.array_equal(det.x, dets[0].x) and np.array_equal(det.P, dets[0].P)
+        assert det.status() == dets[0].status()
 
 
 @pytest.mark.parametrize("key", ["position", "attitude", "gyro", "rotor_speed"])

@@ -52,10 +52,12 @@ alarm times not at all (docs/measurements.md, 'Step cost: aekf by its structure'
 from __future__ import annotations
 
 import math
+import operator
 from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
+from numba.core.errors import TypingError
 
 from ..models.constants import GRAVITY
 from ..models.geometry import euler_from_quat, rotation_from_euler, skew_matrix
@@ -70,7 +72,7 @@ POS, VEL, ETA, OMEGA, BIAS, LOE, DIST = (slice(0, 3), slice(3, 6), slice(6, 9), 
 PSI, BIAS_0, LOE_0 = 8, 12, 15            # the yaw state, the first bias and LOE states
 #: the states with dynamics; the rest (biases, LOE, d) are random walks, whose rows of F are zero
 N_MOVING = 12
-_NO_COMMAND = np.empty(0)
+_NO_COMMAND, _ARRAYS = np.empty(0), frozenset({np.ndarray})
 #: The detector's state (`AugmentedEkfDetector._state`): x, P (row-major), the previous sample's rotor speeds and
 #: held position and velocity, the innovation accumulators of eq. (42) (acc, acc_w, z), what `outputs` publishes
 #: (the LOE estimates, their standard deviations, the statistic), the first sample's time and two flags (1.0
@@ -191,6 +193,7 @@ class AugmentedEkfDetector:
         self._constants = np.concatenate((self.Q.ravel(), self.R_full.diagonal(), self._model, (
             self.dt, self._forget, self.threshold, self.isolation_threshold, self.warmup)))
         self._state = np.zeros(STATE_SIZE)
+        self._gather = operator.itemgetter(*self.KEYS)
         self.reset()
 
     @classmethod
@@ -220,21 +223,36 @@ class AugmentedEkfDetector:
         """One sample: predict from the previous one (eq. 6-12), correct with this one (eq. 13-18), detect (eq. 41-42),
         compiled (`_step`); the first sample initialises. A non-finite reading, command or time raises ValueError
         naming it, with the state untouched."""
-        values = _floats(readings, self.KEYS)
         command = _NO_COMMAND if command is None else np.asarray(command, np.float64)
         if self._start is None or not math.isfinite(time):
+            values = _floats(readings, self.KEYS)
             _check_finite(values, self.KEYS, command, time)  # raises for a non-finite time: only the first gets on
             self._initialise(*values, time)
             return
-        answer = _step(self._state, self._constants, *values, command, time)
+        answer = self._compiled_step(readings, command, time)
         if answer == NOTHING:
             return
         if answer == REJECTED:
-            _check_finite(values, self.KEYS, command, time)
+            _check_finite(_floats(readings, self.KEYS), self.KEYS, command, time)
         elif answer >= ISOLATED_LATER:
             self._latch.isolated = answer - ISOLATED_LATER     # the first isolation after the alarm is kept
         else:
             self._latch.trigger(time, None if answer == ALARM_WITHOUT_ROTOR else answer)
+
+    def _compiled_step(self, readings: dict, command, time: float) -> int:
+        """`_step` on the readings as they come where they are arrays numba takes (it converts them to float64 as
+        `np.asarray` does, so the bits are those of `_floats`' arrays), else on `_floats`' arrays."""
+        try:
+            parts = self._gather(readings)
+        except KeyError:
+            _floats(readings, self.KEYS)                      # names the missing readings
+            raise
+        if _ARRAYS.issuperset(map(type, parts)):
+            try:
+                return _step(self._state, self._constants, *parts, command, time)
+            except TypingError:                               # an object or complex array: converted below
+                pass
+        return _step(self._state, self._constants, *_floats(readings, self.KEYS), command, time)
 
     def outputs(self) -> dict:
         published = self._state[PUBLISHED].copy()              # one copy, three views of it
@@ -355,6 +373,9 @@ def _step(state, constants, position, velocity, attitude, gyro, Omega, command, 
     sample's speeds, correct (eq. 13-18) with the measurement, accumulate the innovation (eq. 42), publish the
     outputs and detect (`_detect`); keeps this sample's speeds and held position and velocity. Returns
     `_detect`'s answer, or REJECTED (nothing changed) if a reading or the command is not finite."""
+    position, velocity, attitude, gyro, Omega = (              # as `_floats` converts them
+        np.asarray(position, np.float64), np.asarray(velocity, np.float64), np.asarray(attitude, np.float64),
+        np.asarray(gyro, np.float64), np.asarray(Omega, np.float64))
     if not (_finite(position) and _finite(velocity) and _finite(attitude) and _finite(gyro) and _finite(Omega)
             and _finite(command)):
         return REJECTED
