@@ -170,6 +170,26 @@ def test_real_flight_payload_change_alarms_after_onset_only(seed):
     assert obs["fdd/iv_change/c_hat"][0] < 0.8 * env.detector.c          # the estimate fell with the mass
 
 
+def test_readings_as_lists_other_dtypes_or_strided_views_give_the_same_detector():
+    """The env's float64 arrays reach the compiled sample as they are; float32, 2-D and strided arrays are
+    converted by it, lists and object arrays (which numba cannot take) in Python: all give the same bits."""
+    detectors = [IvChangeDetector(MASS, LAMBDA_1, DT) for _ in range(5)]
+    table = np.zeros((3, 2))
+    for readings, t in synthetic_flight(12.0, 6.0):
+        readings = {key: value.astype(np.float32).astype(np.float64) for key, value in readings.items()}
+        table[:, 1] = readings["velocity"]
+        variants = (readings, {key: value.astype(np.float32) for key, value in readings.items()},
+                    {**readings, "velocity": table[:, 1], "gyro": readings["gyro"][:, None]},
+                    {key: value.tolist() for key, value in readings.items()},
+                    {**readings, "accel": readings["accel"].astype(object)})
+        for detector, variant in zip(detectors, variants):
+            detector.update(variant, t)
+    assert detectors[0].c_hat != 0.0
+    for detector in detectors[1:]:
+        assert np.array_equal(detector._state, detectors[0]._state, equal_nan=True)     # NaN: a time not yet set
+        assert detector.status() == detectors[0].status()
+
+
 def test_protocol_and_non_finite_readings():
     detector = IvChangeDetector(MASS, LAMBDA_1, DT)
     assert isinstance(detector, Detector) and detector.name == "iv_change"

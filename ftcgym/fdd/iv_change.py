@@ -83,10 +83,12 @@ replaced, in the same order, with the same BLAS product and LAPACK solve (numba'
 from __future__ import annotations
 
 import math
+import operator
 from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
+from numba.core.errors import TypingError
 from scipy import signal
 
 from ..models.constants import GRAVITY
@@ -552,6 +554,7 @@ class IvChangeDetector:
         self.test, self.wind_threshold = s.test, float(s.wind_threshold)
         self.wind_test = WindDragTest(mass, lambda_1, rotor_drag, s, self.dt) if s.test == "wind" else None
         self._keys = READ_KEYS + (WIND_TEST_KEYS if self.wind_test is not None else ())
+        self._gather = operator.itemgetter(*self._keys)
         self.latch = AlarmLatch()
         lowpass = LowPassBank(s.cutoff_hz, s.filter_order, self.dt, s.weight_hz)
         air = LowPassBank(s.air_cutoff_hz, s.filter_order, self.dt) if self.wind_test is not None else None
@@ -606,15 +609,11 @@ class IvChangeDetector:
         """One reading, compiled (`_sample`; the wind test's Kalman step, every `period` s, in numpy); a non-finite
         reading raises ValueError naming it, the state untouched. The wind test's CUSUM (before the grid samples,
         whose alarms come later in the latch) and the alarm latch are here."""
+        state, values = self._state, self._readings(readings)
         try:
-            values = [_array(readings[key]) for key in self._keys]
-        except KeyError:
-            _finite(readings, self._keys)      # raises the KeyError of the missing reading
-            raise
-        if self.wind_test is None:
-            values += (_EMPTY, _EMPTY, _EMPTY)
-        state = self._state
-        answer = _sample(state, self._constants, *values, time)
+            answer = _sample(state, self._constants, *values, time)
+        except TypingError:                    # an array numba cannot take (object, complex): converted here
+            answer = _sample(state, self._constants, *map(_array, values), time)
         if answer == WIND_DUE:
             wind = self.wind_test
             wind.filter_step(state[WIND_F:WIND_F + 10].copy(), time, state[WIND_START])
@@ -628,6 +627,18 @@ class IvChangeDetector:
                 _finite(readings, self._keys)
             else:
                 self.latch.trigger(answer)
+
+    def _readings(self, readings: dict) -> tuple:
+        """The readings `_sample` takes, in `_keys`' order: arrays as they come (it converts them as `_array` does,
+        so the bits are the same), anything else through `_array`; the wind test's empty where it is off."""
+        try:
+            values = self._gather(readings)
+        except KeyError:
+            _finite(readings, self._keys)      # raises the KeyError of the missing reading
+            raise
+        if not _ARRAYS.issuperset(map(type, values)):
+            values = tuple(map(_array, values))
+        return values if self.wind_test is not None else values + (_EMPTY, _EMPTY, _EMPTY)
 
     @property
     def J(self) -> tuple:
@@ -768,7 +779,7 @@ CURRENT_F, HEADER = 105, 117                       # this sample's filtered chan
  K_N, K_AIR_N, K_RING, K_LOWPASS, K_AIR_LOWPASS, K_CA, K_AIR_CA, K_HEADER) = range(38)
 GATES = {"measured": 0.0, "reference": 1.0, "none": 2.0}
 NOTHING, WIND_DUE, NON_FINITE = math.nan, -math.inf, math.inf   # `_sample`'s answers besides an alarm time
-_EMPTY = np.empty(0)
+_EMPTY, _ARRAYS = np.empty(0), frozenset({np.ndarray})
 
 
 @njit(cache=True)
@@ -816,12 +827,21 @@ def _all_finite(a):  # pragma: no cover (compiled)
 
 
 @njit(cache=True)
+def _flat(reading):  # pragma: no cover (compiled)
+    """A reading as `_array` makes it: 1-D, float64 (the env's arrays as they are)."""
+    return np.asarray(reading, np.float64).ravel()
+
+
+@njit(cache=True)
 def _sample(state, constants, gyro, accel, position, velocity, yaw_reading, attitude, ground_velocity,
             rotor_speed, time):  # pragma: no cover (compiled)
     """`IvChangeDetector.update` up to the wind test's filter step, then `_iv_samples` (if the wind test has no step
     due): the reference model (Sec. 4.2), the gate, the channels, the wind test's per-sample low-pass. Returns the
     time of an alarm the IV tests raise, NOTHING, WIND_DUE (the wind test's step is due: its filtered channels in
     the state, the IV part left to `_iv_samples`), or NON_FINITE (state untouched)."""
+    gyro, accel, position, velocity = _flat(gyro), _flat(accel), _flat(position), _flat(velocity)
+    yaw_reading, attitude, ground_velocity, rotor_speed = (_flat(yaw_reading), _flat(attitude),
+                                                            _flat(ground_velocity), _flat(rotor_speed))
     if not (_all_finite(gyro) and _all_finite(accel) and _all_finite(position) and _all_finite(velocity)
             and _all_finite(yaw_reading) and _all_finite(attitude) and _all_finite(ground_velocity)
             and _all_finite(rotor_speed)):
