@@ -4,6 +4,7 @@ import functools
 import numpy as np
 import pytest
 from stable_baselines3 import PPO
+from stable_baselines3.common.logger import configure
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv
 
@@ -56,10 +57,11 @@ def test_matches_dummy_vec_env_step_for_step():
         parallel.close()
 
 
-def test_ppo_learns_on_it():
+def test_ppo_learns_on_it(tmp_path):
     venv = ParallelVecEnv([FACTORY] * 2, workers=1)
     try:
         model = PPO("MultiInputPolicy", venv, n_steps=32, batch_size=32, n_epochs=1, seed=0, device="cpu")
+        model.set_logger(configure(str(tmp_path), []))    # SB3's default leaves an SB3-<date> folder in /tmp
         model.learn(64)
         assert model.num_timesteps == 64
     finally:
