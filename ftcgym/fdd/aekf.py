@@ -63,7 +63,7 @@ from ..models.constants import GRAVITY
 from ..models.geometry import euler_from_quat, rotation_from_euler, skew_matrix
 from ..models.quadrotor import YAW_SIGNS, rotor_wrench_matrix
 from ..settings import updated
-from .base import AlarmLatch
+from .base import ARRAY_TYPES, AlarmLatch
 from .wrapper import DetectorWrapper
 
 N_X = 21
@@ -72,7 +72,7 @@ POS, VEL, ETA, OMEGA, BIAS, LOE, DIST = (slice(0, 3), slice(3, 6), slice(6, 9), 
 PSI, BIAS_0, LOE_0 = 8, 12, 15            # the yaw state, the first bias and LOE states
 #: the states with dynamics; the rest (biases, LOE, d) are random walks, whose rows of F are zero
 N_MOVING = 12
-_NO_COMMAND, _ARRAYS = np.empty(0), frozenset({np.ndarray})
+_NO_COMMAND = np.empty(0)
 #: The detector's state (`AugmentedEkfDetector._state`): x, P (row-major), the previous sample's rotor speeds and
 #: held position and velocity, the innovation accumulators of eq. (42) (acc, acc_w, z), what `outputs` publishes
 #: (the LOE estimates, their standard deviations, the statistic), the first sample's time and two flags (1.0
@@ -247,7 +247,7 @@ class AugmentedEkfDetector:
         except KeyError:
             _floats(readings, self.KEYS)                      # names the missing readings
             raise
-        if _ARRAYS.issuperset(map(type, parts)):
+        if ARRAY_TYPES.issuperset(map(type, parts)):
             try:
                 return _step(self._state, self._constants, *parts, command, time)
             except TypingError:                               # an object or complex array: converted below

@@ -89,7 +89,7 @@ from ..models.pyfloat import py_pow
 from ..models.quadplane_aero import aero_model, fuselage_loads, speed_squared, wing_flow_loads
 from ..settings import updated
 from . import kalman
-from .base import biquad_constants, biquad_step, model_with_error
+from .base import ARRAY_TYPES, biquad_constants, biquad_step, model_with_error
 from .pitot_detection import (
     C_ALARM,
     C_ALARM_TIME,
@@ -730,7 +730,7 @@ class AirdataEkfDetector:
         them, are gathered by the compiled call itself (`_prepare_arrays`, compiled once per layout), anything else
         (scalars, lists, a dtype numba cannot take) through `_flat`."""
         states = self._run, self._lowpass, self._check_states, self._check_constants
-        if _ARRAYS.issuperset(map(type, parts)):
+        if ARRAY_TYPES.issuperset(map(type, parts)):
             try:
                 if len(parts) == len(self._keys):
                     return _prepare_arrays(*states, *parts, _NO_READING)
@@ -1118,7 +1118,7 @@ def _pitot_tests(state, residual, time, detect, pitot_states, pitot_constants): 
               armed and forward >= detect[RAMP_MIN_AIRSPEED])
 
 
-_NO_READING, _ARRAYS = np.empty(0), frozenset({np.ndarray})
+_NO_READING = np.empty(0)
 
 
 def _first(reading) -> float:

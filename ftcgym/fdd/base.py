@@ -13,6 +13,10 @@ import numpy as np
 from numba import njit
 from scipy import signal
 
+#: the reading types the detectors' compiled steps take as they come (numba converts or rejects their dtypes);
+#: anything else is converted in Python first: `ARRAY_TYPES.issuperset(map(type, readings))`
+ARRAY_TYPES = frozenset({np.ndarray})
+
 
 @runtime_checkable
 class Detector(Protocol):

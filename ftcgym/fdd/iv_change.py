@@ -95,7 +95,7 @@ from ..models.constants import GRAVITY
 from ..models.geometry import euler_from_quat, rotation_matrix
 from ..models.quadrotor import rotor_wrench_matrix
 from ..settings import updated
-from .base import AlarmLatch
+from .base import ARRAY_TYPES, AlarmLatch
 from .wrapper import DetectorWrapper
 
 READ_KEYS = ("gyro", "accel", "reference_position", "reference_velocity", "reference_yaw")
@@ -636,7 +636,7 @@ class IvChangeDetector:
         except KeyError:
             _finite(readings, self._keys)      # raises the KeyError of the missing reading
             raise
-        if not _ARRAYS.issuperset(map(type, values)):
+        if not ARRAY_TYPES.issuperset(map(type, values)):
             values = tuple(map(_array, values))
         return values if self.wind_test is not None else values + (_EMPTY, _EMPTY, _EMPTY)
 
@@ -779,7 +779,7 @@ CURRENT_F, HEADER = 105, 117                       # this sample's filtered chan
  K_N, K_AIR_N, K_RING, K_LOWPASS, K_AIR_LOWPASS, K_CA, K_AIR_CA, K_HEADER) = range(38)
 GATES = {"measured": 0.0, "reference": 1.0, "none": 2.0}
 NOTHING, WIND_DUE, NON_FINITE = math.nan, -math.inf, math.inf   # `_sample`'s answers besides an alarm time
-_EMPTY, _ARRAYS = np.empty(0), frozenset({np.ndarray})
+_EMPTY = np.empty(0)
 
 
 @njit(cache=True)
