@@ -208,6 +208,18 @@ def test_deterministic_action_is_sb3s_predict_bit_for_bit(trained):
     np.testing.assert_array_equal(deterministic_action(model, batch), model.predict(batch, deterministic=True)[0])
 
 
+def test_deterministic_action_of_a_discrete_action_space_is_sb3s_predict():
+    """A Box observation with a Discrete action space goes through `model.predict` (no clip to Box bounds)."""
+    from stable_baselines3 import PPO
+
+    from ftcgym.training.saved import deterministic_action
+
+    model = PPO("MlpPolicy", gym.make("CartPole-v1"), seed=0, device="cpu")
+    for obs in np.random.default_rng(3).standard_normal((20, 4)).astype(np.float32):
+        expected, _ = model.predict(obs, deterministic=True)
+        assert np.array_equal(deterministic_action(model, obs), expected)
+
+
 def test_a_saved_model_is_read_once_per_process_until_its_files_change(trained, tmp_path):
     """The benchmark makes a learned policy per episode: the second load shares the first's model and
     statistics; a model file rewritten on disk is read anew."""

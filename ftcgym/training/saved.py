@@ -62,7 +62,7 @@ class SavedModelPolicy:
 
 
 def deterministic_action(model, observation) -> np.ndarray:
-    """`model.predict(observation, deterministic=True)`'s action for one observation of a Box space, without the
+    """`model.predict(observation, deterministic=True)`'s action for one observation, Box spaces both, without the
     checks and conversions SB3 makes around the network on every call (a third of its cost for the shipped
     policies): the same modules on the same tensor, so the same bits (`tests/test_training.py`). Anything else
     goes through `model.predict`."""
@@ -70,7 +70,8 @@ def deterministic_action(model, observation) -> np.ndarray:
 
     policy = model.policy
     space = policy.observation_space
-    if not isinstance(space, spaces.Box) or np.shape(observation) != space.shape:
+    if (not isinstance(space, spaces.Box) or not isinstance(policy.action_space, spaces.Box)
+            or np.shape(observation) != space.shape):
         action, _ = model.predict(observation, deterministic=True)
         return np.asarray(action)
     if policy.training:                      # as SB3's predict, which sets it on every call
