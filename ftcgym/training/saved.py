@@ -62,10 +62,10 @@ class SavedModelPolicy:
 
 
 def deterministic_action(model, observation) -> np.ndarray:
-    """`model.predict(observation, deterministic=True)`'s action for one observation, Box spaces both, without the
-    checks and conversions SB3 makes around the network on every call (a third of its cost for the shipped
-    policies): the same modules on the same tensor, so the same bits (`tests/test_training.py`). Anything else
-    goes through `model.predict`."""
+    """`model.predict(observation, deterministic=True)`'s action for one observation, without the checks and
+    conversions SB3 makes around the network on every call (a third of its cost for the shipped policies): the
+    same modules on the same tensor, so the same bits (`tests/test_training.py`). That path is taken where the
+    observation and action spaces are both Box; anything else goes through `model.predict`."""
     import torch as th  # the `train` extra, as the model itself
 
     policy = model.policy
