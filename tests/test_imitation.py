@@ -70,6 +70,7 @@ def test_saturated_loss_ignores_a_mean_beyond_the_bound_its_label_sits_at():
     # beyond +1 and -1 at saturated labels: no error; interior 0.2; short of the bound 0.5
     assert float(_action_loss(mean, labels, "saturated", bound)) == pytest.approx((0.2 ** 2 + 0.5 ** 2) / 4)
     assert float(_action_loss(mean, labels, "mse", bound)) == pytest.approx((0.25 + 4.0 + 0.04 + 0.25) / 4)
+    assert float(_action_loss(mean, labels, "l1", bound)) == pytest.approx((0.5 + 2.0 + 0.2 + 0.5) / 4)
 
 
 def test_annealed_fit_ends_below_a_constant_rate_and_restores_the_rate():

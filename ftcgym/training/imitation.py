@@ -15,11 +15,13 @@ action to the expert's by mean squared error over the whole set. With `loss: sat
 of the action space only penalises a mean short of that bound: the flown action is clipped, so any mean
 beyond it flies the same, and the network may represent the expert's idle/full switching as a smooth
 function crossing the bound instead of fitting a kink (a third of the spin recovery's labels sit at a
-bound). With `final_epochs`, the whole data set is then fitted that many more passes with the learning rate
-annealed to zero (cosine): the last iteration's fit has not converged (on the rotor-loss-recovery config, 30
-such passes took the action MSE from 0.0088 to 0.0055). The value head is then fitted to the discounted
-returns of the last iteration's episodes (flown mostly by the learner), so the RL fine-tuning does not start
-from an untrained critic.
+bound). With `loss: l1` the mean absolute error is minimised: where the features do not separate the
+expert's idle and full commands, its minimiser is the labels' median (one of the two) rather than their mean,
+which flies neither. With `final_epochs`, the whole data set is then fitted that many more passes with the
+learning rate annealed to zero (cosine): the last iteration's fit has not converged (on the
+rotor-loss-recovery config, 30 such passes took the action MSE from 0.0088 to 0.0055). The value head is then
+fitted to the discounted returns of the last iteration's episodes (flown mostly by the learner), so the RL
+fine-tuning does not start from an untrained critic.
 """
 from __future__ import annotations
 
@@ -28,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 EXPERT_KEY = "expert_action"
-LOSSES = ("mse", "saturated")
+LOSSES = ("mse", "saturated", "l1")
 
 
 @dataclass
@@ -45,7 +47,7 @@ class DaggerSettings:
     learning_rate: float = 1e-3
     log_std: float | None = -2.0          # the Gaussian policy's log std after pre-training (RL exploration)
     value_epochs: int = 10
-    loss: str = "mse"                     # "mse", or "saturated": no penalty beyond a bound the label sits at
+    loss: str = "mse"                     # "mse"; "saturated": no penalty beyond a bound the label sits at; "l1"
     final_epochs: int = 0                 # after the last iteration: passes over the whole set, rate annealed to 0
     continue_from_init: bool = False      # with --init-from: DAgger continues from the saved model (else skipped)
 
@@ -216,9 +218,12 @@ def _fit_actor(model, optimizer, observations, labels, settings: DaggerSettings,
 
 
 def _action_loss(mean, labels, kind: str, bound):
-    """Mean squared error; "saturated": a label at +-bound (symmetric Box) leaves a mean beyond it unpenalised."""
+    """Mean squared error; "saturated": a label at +-bound (symmetric Box) leaves a mean beyond it unpenalised;
+    "l1": mean absolute error."""
     import torch
     error = mean - labels
+    if kind == "l1":
+        return torch.mean(torch.abs(error))
     if kind == "saturated":
         error = torch.where(labels >= bound, torch.clamp(error, max=0.0), error)
         error = torch.where(labels <= -bound, torch.clamp(error, min=0.0), error)
