@@ -89,10 +89,14 @@ def test_annealed_fit_ends_below_a_constant_rate_and_restores_the_rate():
         settings = DaggerSettings(batch_size=64, learning_rate=1e-2)
         _fit_actor(model, optimizer, observations, labels, settings, np.random.default_rng(1), epochs=10)
         losses[anneal] = _fit_actor(model, optimizer, observations, labels, settings, np.random.default_rng(2),
-                                    epochs=10, anneal=anneal)
+                                    epochs=10, anneal=anneal)["action_mse"]
         assert optimizer.param_groups[0]["lr"] == 1e-2      # the value fit after it runs at the set rate
     # 10 more passes after the same 10 at 1e-2 (Adam's noise floor on this fit: 4.6e-4): annealed, 3.7e-4
     assert losses[True] < 0.9 * losses[False]
+    # another loss reports itself beside the squared error, which stays comparable across losses
+    fit = _fit_actor(model, optimizer, observations, labels, DaggerSettings(batch_size=64, loss="l1"), rng, epochs=1)
+    assert set(fit) == {"action_mse", "action_loss"}
+    assert 0.0 < fit["action_loss"] ** 2 <= fit["action_mse"]   # (mean |e|)^2 <= mean e^2 (Jensen), per batch
     env.close()
 
 

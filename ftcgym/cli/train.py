@@ -64,16 +64,17 @@ def _run(args, argv: list[str]) -> int:
     out = args.out or os.path.join("train_out", f"{config.task}-{config.algo}-seed{config.seed}"
                                                 f"{'-quick' if config.quick else ''}")
     print(plan_line(config, out, args.init_from), flush=True)
+    from ftcgym.training.imitation import fit_summary
     from ftcgym.training.train import train
 
     manifest = train(config, out, progress=args.progress, command=shlex.join(["ftcgym", *argv]),
                      init_from=args.init_from)
     if "pretrain" in manifest:
         last = manifest["pretrain"]["iterations"][-1]
-        final = f", final fit action mse {last['final_fit']['action_mse']:.4f}" if "final_fit" in last else ""
+        final = f", final fit {fit_summary(last['final_fit'])}" if "final_fit" in last else ""
         print(f"imitation pre-training: {len(manifest['pretrain']['iterations'])} DAgger iterations, "
               f"{last['samples']} samples in {manifest['pretrain']['wall_time_s']:.1f} s, "
-              f"action mse {last['action_mse']:.4f}{final}")
+              f"{fit_summary(last)}{final}")
     print(f"{manifest['steps']} steps in {manifest['wall_time_s']:.1f} s ({manifest['steps_per_s'] or 0:.0f} steps/s, "
           f"{config.n_envs} envs); wrote model.zip, manifest.json to {out}")
     return 0

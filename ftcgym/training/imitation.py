@@ -99,25 +99,25 @@ def dagger(model, venv, settings: DaggerSettings, normalizer=None, seed: int = 0
             normalizer.obs_rms.update(flown["observations"])
         if progress is not None:
             progress.set_description(f"DAgger {iteration + 1}/{settings.iterations} fit")
-        loss = _fit_actor(model, optimizer, _normalized(normalizer, np.concatenate(observations)),
-                          np.concatenate(labels), settings, rng)
+        fit = _fit_actor(model, optimizer, _normalized(normalizer, np.concatenate(observations)),
+                         np.concatenate(labels), settings, rng)
         stats = {"iteration": iteration, "beta": beta, "samples": int(sum(len(o) for o in observations)),
-                 "action_mse": loss, "episodes": len(flown["returns"]),
+                 **fit, "episodes": len(flown["returns"]),
                  "crash_rate": flown["crashes"] / max(len(flown["returns"]), 1),
                  "mean_return": float(np.mean(flown["returns"])) if flown["returns"] else None}
         history.append(stats)
         if on_iteration is not None:
             on_iteration(stats)
-        log(f"dagger {iteration}: beta {beta:.3f}, {stats['samples']} samples, action mse {loss:.4f}, "
+        log(f"dagger {iteration}: beta {beta:.3f}, {stats['samples']} samples, {fit_summary(fit)}, "
             f"{stats['episodes']} episodes flown, crash rate {stats['crash_rate']:.2f}")
         beta *= settings.beta_decay
     if progress is not None:
         progress.set_description("DAgger final fit")
     if settings.final_epochs:
-        loss = _fit_actor(model, optimizer, _normalized(normalizer, np.concatenate(observations)),
-                          np.concatenate(labels), settings, rng, epochs=settings.final_epochs, anneal=True)
-        history[-1]["final_fit"] = {"epochs": settings.final_epochs, "action_mse": loss}
-        log(f"dagger final fit: {settings.final_epochs} epochs, learning rate annealed, action mse {loss:.4f}")
+        fit = _fit_actor(model, optimizer, _normalized(normalizer, np.concatenate(observations)),
+                         np.concatenate(labels), settings, rng, epochs=settings.final_epochs, anneal=True)
+        history[-1]["final_fit"] = {"epochs": settings.final_epochs, **fit}
+        log(f"dagger final fit: {settings.final_epochs} epochs, learning rate annealed, {fit_summary(fit)}")
     _fit_value(model, optimizer, _normalized(normalizer, flown["value_observations"]), flown["value_targets"],
                settings, rng)
     if settings.log_std is not None and hasattr(model.policy, "log_std"):
@@ -188,9 +188,11 @@ def _batches(size: int, batch_size: int, epochs: int, rng):
 
 
 def _fit_actor(model, optimizer, observations, labels, settings: DaggerSettings, rng, epochs: int | None = None,
-               anneal: bool = False) -> float:
+               anneal: bool = False) -> dict:
     """Fit the policy's mean action to the labels (`settings.loss`) for `epochs` (default `settings.epochs`),
-    with `anneal` the learning rate cosine-annealed to 0 over them (then restored); the last epoch's mean loss."""
+    with `anneal` the learning rate cosine-annealed to 0 over them (then restored). Returns the last epoch's
+    mean squared action error, `action_mse`, whatever the loss, so that runs with different losses compare;
+    with another loss than "mse" also that loss's mean, `action_loss`."""
     import torch
     policy = model.policy
     epochs = settings.epochs if epochs is None else epochs
@@ -198,7 +200,7 @@ def _fit_actor(model, optimizer, observations, labels, settings: DaggerSettings,
     labels_t = torch.as_tensor(labels, dtype=torch.float32)
     bound = torch.as_tensor(model.action_space.high, dtype=torch.float32)
     policy.set_training_mode(True)
-    losses = []
+    losses, squared = [], []
     batches_per_epoch = -(-len(observations) // settings.batch_size)
     schedule = (torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=epochs * batches_per_epoch)
                 if anneal else None)
@@ -211,10 +213,20 @@ def _fit_actor(model, optimizer, observations, labels, settings: DaggerSettings,
         if schedule is not None:
             schedule.step()
         losses.append(float(loss.detach()))
+        squared.append(float(torch.mean((mean.detach() - labels_t[batch]) ** 2)))
     policy.set_training_mode(False)
     for group in optimizer.param_groups:
         group["lr"] = settings.learning_rate
-    return float(np.mean(losses[-batches_per_epoch:]))
+    fit = {"action_mse": float(np.mean(squared[-batches_per_epoch:]))}
+    if settings.loss != "mse":
+        fit["action_loss"] = float(np.mean(losses[-batches_per_epoch:]))
+    return fit
+
+
+def fit_summary(fit: dict) -> str:
+    """A fit's errors as printed: the action MSE, and the fitted loss where it is another."""
+    loss = f" ({fit['action_loss']:.4f} by the fitted loss)" if "action_loss" in fit else ""
+    return f"action mse {fit['action_mse']:.4f}{loss}"
 
 
 def _action_loss(mean, labels, kind: str, bound):
