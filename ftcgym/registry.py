@@ -64,11 +64,17 @@ class Registry:
                                  f"{self.group!r} could not be loaded ({error})") from None
         if ":" in name:
             return load_reference(name, self.kind)
-        close = difflib.get_close_matches(name, self.names(), n=1)
+        raise self.unknown(name)
+
+    def unknown(self, name: str, known=()) -> ValueError:
+        """The error for `name`, which is none of `known` (names of the caller's own), the built-ins and the
+        installed ones: it names the closest of them all and lists them."""
+        names = list(known) + [other for other in self.names() if other not in known]
+        close = difflib.get_close_matches(name, names, n=1)
         hint = f" (did you mean {close[0]!r}?)" if close else ""
-        raise ValueError(f"{self.kind}: unknown name {name!r}{hint}; tried the built-in names and the entry points "
-                         f"of group {self.group!r}; accepted: {self.names()} or MODULE:ATTR (an importable module "
-                         f"and an attribute of it)")
+        return ValueError(f"{self.kind}: unknown name {name!r}{hint}; tried the built-in names and the entry points "
+                          f"of group {self.group!r}; accepted: {names} or MODULE:ATTR (an importable module and "
+                          f"an attribute of it)")
 
 
 def load_reference(reference: str, kind: str):

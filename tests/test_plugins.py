@@ -63,6 +63,15 @@ def test_an_installed_package_plugs_in_by_entry_point(tmp_path):
     listing = subprocess.run([str(FTCGYM), "bench", "--list"], env={**os.environ, "PYTHONPATH": str(site)},
                              capture_output=True, text=True, check=True).stdout
     assert "example-spin" in listing and "rotor-jump" in listing
+    [line] = [line for line in listing.splitlines() if line.strip().startswith("example-rotor-loss")]
+    assert get_scenario_description(site) in line     # the plug-in scenario with its own description
+
+
+def get_scenario_description(site: Path) -> str:
+    run = subprocess.run([sys.executable, "-c", "from ftcgym.benchmark.scenarios import get_scenario; "
+                          "print(get_scenario('example-rotor-loss').description)"],
+                         env={**os.environ, "PYTHONPATH": str(site)}, capture_output=True, text=True, check=True)
+    return run.stdout.strip()
 
 
 def test_the_python_api_takes_module_references(monkeypatch):
@@ -98,3 +107,23 @@ def test_the_cli_rejects_an_unknown_detector_before_flying(tmp_path):
     run = subprocess.run([str(FTCGYM), "bench", "--detector", "psychic", "--out", str(tmp_path)],
                          capture_output=True, text=True)
     assert run.returncode == 2 and "detector: unknown name 'psychic'" in run.stderr
+
+
+def test_the_cli_rejects_a_policy_without_act_before_flying(tmp_path):
+    (tmp_path / "half_policy.py").write_text("class NoAct:\n    def __init__(self, env):\n        pass\n\n"
+                                             "    def reset(self, obs, info):\n        pass\n")
+    run = subprocess.run([str(FTCGYM), "bench", "--scenario", "quad-rotor-loss-hover", "--policy", "half_policy:NoAct",
+                          "--episodes", "1", "--out", str(tmp_path / "out")],
+                         env={**os.environ, "PYTHONPATH": str(tmp_path)}, capture_output=True, text=True)
+    assert run.returncode == 2
+    assert run.stderr.strip().splitlines() == [
+        "ftcgym bench: scenario 'quad-rotor-loss-hover': policy 'half_policy:NoAct': NoAct has no act(obs, info); a "
+        "policy is a class or factory called with the env that returns an object with reset(obs, info) and "
+        "act(obs, info)"]
+    assert not (tmp_path / "out" / "results.json").exists()
+
+
+def test_a_misspelt_scenario_names_the_built_in_it_is_closest_to():
+    with pytest.raises(ValueError, match=r"scenario: unknown name 'quad-rotor-loss-hoverr' \(did you mean "
+                                         r"'quad-rotor-loss-hover'\?\); .*accepted: \['quad-hover', 'quad-square', "):
+        get_scenario("quad-rotor-loss-hoverr")

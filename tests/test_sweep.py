@@ -65,7 +65,8 @@ def test_vehicle_overrides_merge_into_the_scenarios_env_kwargs():
      r"\.detector: detector: unknown name 'psychic'; .*accepted: \["),
     ({"grid": {"Q": [1]}}, r"grid.Q: keys are FIELD.NAME with FIELD one of \['detector_kwargs'"),
     ({"grid": {"detector_kwargs.Q": 0.1}}, r"grid.detector_kwargs.Q: must be a non-empty list"),
-    ({"scenarios": {"quad-nowhere": 3}}, r"scenarios: scenario: unknown name 'quad-nowhere'; .*registered:"),
+    ({"scenarios": {"quad-nowhere": 3}}, r"scenarios: scenario: unknown name 'quad-nowhere' "
+                                        r"\(did you mean 'quad-hover'\?\); .*accepted: \['quad-hover'"),
     ({"scenarios": {"quad-hover": 0}}, r"scenarios.quad-hover: must be an integer >= 1, got 0"),
     ({"seeds": 3}, r"seeds: must be a list, got 3"),
     ({"policies": ["autopilot-x"]},

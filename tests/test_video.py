@@ -145,7 +145,8 @@ def test_without_imageio_video_is_one_line_naming_the_extra(monkeypatch, capsys,
                    "--out", str(tmp_path / "x.mp4")])
     err = capsys.readouterr().err
     assert status == 2 and err.count("\n") == 1
-    assert err == "ftcgym video: writing a video needs imageio and imageio-ffmpeg: pip install 'ftcgym[video]'\n"
+    assert err == ("ftcgym video: writing a video needs imageio and imageio-ffmpeg: pip install -c constraints.txt "
+                   "-e '.[video]' in the ftcgym clone\n")
     assert not (tmp_path / "x.mp4").exists()
 
 

@@ -258,13 +258,21 @@ def make_env(scenario: Scenario, env_overrides: dict | None = None) -> gym.Env:
     return env
 
 
-def check_setup(scenario: Scenario, env_overrides: dict | None = None) -> None:
-    """Build the scenario's env and detector once, so a bad env or detector argument is one ValueError naming the
-    scenario before any episode flies (instead of the same failure in every episode)."""
+def check_setup(scenario: Scenario, env_overrides: dict | None = None, policies=()) -> None:
+    """Build the scenario's env and detector, and each of `policies` on that env, once: a bad env or detector
+    argument, or a policy that does not fly the env (or lacks `act`), is one ValueError naming the scenario
+    before any episode flies (instead of the same failure in every episode)."""
     try:
-        make_env(scenario, env_overrides).close()
+        env = make_env(scenario, env_overrides)
     except (ValueError, TypeError) as error:
         raise ValueError(f"scenario {scenario.name!r}: {error}") from error
+    try:
+        for policy in policies:
+            make_policy(policy, env)
+    except (ValueError, TypeError) as error:
+        raise ValueError(f"scenario {scenario.name!r}: {error}") from error
+    finally:
+        env.close()
 
 
 def run_episode(scenario: Scenario | str, policy_name: str, seed: int,
@@ -295,7 +303,7 @@ def run_benchmark(scenarios, policies=None, episodes: int | None = None, seed: i
     """
     scenarios = [get_scenario(s) if isinstance(s, str) else s for s in scenarios]
     for scenario in scenarios:
-        check_setup(scenario, env_overrides)
+        check_setup(scenario, env_overrides, policies or scenario.policies)
     jobs = [Job(f"{scenario.name}/{policy}/{index}", scenario, policy, episode_seed(seed, index), env_overrides)
             for scenario in scenarios
             for policy in (policies or scenario.policies)

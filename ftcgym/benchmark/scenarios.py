@@ -68,14 +68,18 @@ def get_scenario(name: str) -> Scenario:
     one. A scenario found by entry point or reference carries the name as given."""
     if name in SCENARIOS:
         return SCENARIOS[name]
-    try:
-        found = PLUG_INS.load(name)
-    except ValueError as error:
-        raise ValueError(f"{error}; registered: {', '.join(SCENARIOS)}") from None
+    if isinstance(name, str) and name and ":" not in name and name not in PLUG_INS:
+        raise PLUG_INS.unknown(name, known=SCENARIOS)
+    found = PLUG_INS.load(name)
     scenario = found() if callable(found) and not isinstance(found, Scenario) else found
     if not isinstance(scenario, Scenario):
         raise TypeError(f"scenario {name!r}: got {type(scenario).__name__}, not an ftcgym.benchmark.Scenario")
     return replace(scenario, name=name)
+
+
+def scenario_names() -> list[str]:
+    """The registered scenarios, then those of installed packages (entry-point group `ftcgym.scenarios`)."""
+    return list(SCENARIOS) + [name for name in PLUG_INS.names() if name not in SCENARIOS]
 
 
 def default_scenarios() -> list[Scenario]:
@@ -182,7 +186,8 @@ register(Scenario(
                            {"kind": "loe", "target": [1, 3], "time": 6.0, "magnitude": 0.5, "rate": 0.1}]},
     episodes=4,
     detector="aekf",
-    description="002 Sec. 5.2: LOE ramps 0.1/s capped at 0.5 on diagonal pairs (r1, r3) at 5 s and (r2, r4) at 6 s.",
+    description="Lu et al. Sec. 5.2: LOE ramps 0.1/s capped at 0.5 on diagonal pairs (r1, r3) at 5 s and (r2, r4) "
+                "at 6 s.",
 ))
 # 004 Sec. 5.1: a 0.5 kg quadcopter (our mueller2014 set) gains 0.5 kg between 40 and 42 s on the square.
 _PAYLOAD = {"vehicle": "mueller2014", "max_episode_seconds": 60.0,
@@ -194,7 +199,8 @@ register(Scenario(
     env_kwargs={**_PAYLOAD, "task": {"name": "square", "altitude": 8.0}},
     episodes=4,
     detector="iv_change",
-    description="004 Sec. 5.1: mass 0.5 -> 1 kg at 40-42 s on the 8 m square, light turbulence, wind (1, -1, 0).",
+    description="Ho, Hendeby and Enqvist 2020 Sec. 5.1: mass 0.5 -> 1 kg at 40-42 s on the 8 m square, light "
+                "turbulence, wind (1, -1, 0).",
 ))
 register(Scenario(
     name="quad-payload-heading",
@@ -202,7 +208,8 @@ register(Scenario(
     env_kwargs={**_PAYLOAD, "task": {"name": "square", "altitude": 8.0, "heading_changes": True}},
     episodes=4,
     detector="iv_change",
-    description="As quad-payload, turning the heading by 90 deg at each corner (004's second scenario).",
+    description="As quad-payload, turning the heading by 90 deg at each corner (Ho, Hendeby and Enqvist's second "
+                "scenario).",
 ))
 
 # Quad-plane: the autopilot flies the mission (take-off, transition, one 150 m circle at 18 m/s,
@@ -234,7 +241,7 @@ register(Scenario(
     episodes=2,
     detector="airdata_ekf",
     detector_kwargs=PITOT_ALARM,
-    description="Quad-plane mission; the pitot reads zero from 45 s, in forward flight (001 Sec. 7.2.1).",
+    description="Quad-plane mission; the pitot reads zero from 45 s, in forward flight (Larocque 2023 Sec. 7.2.1).",
     default=True,
 ))
 register(Scenario(
@@ -246,7 +253,7 @@ register(Scenario(
     detector="airdata_ekf",
     detector_kwargs=PITOT_ALARM,
     description="Quad-plane mission; from 45 s the pitot reading drifts down at 2.5 m/s^2 (water blockage, "
-                "001 Sec. 7.2.2).",
+                "Larocque 2023 Sec. 7.2.2).",
 ))
 # EKF fault tolerance (001 Sec. 7.3): a sensor the EKF uses reads zero in forward flight; scored on
 # the airdata_ekf innovation detectors (isolated "gnss" / "pusher_rpm"); airspeed-switch must not switch on them.
@@ -260,7 +267,8 @@ for _name, _kind, _sensor, _section in (("qp-gnss-fault", "gnss", "GNSS velocity
         policies=SENSOR_FAULT_POLICIES,
         episodes=2,
         detector="airdata_ekf",
-        description=f"Quad-plane mission; the {_sensor} reads zero from 45 s, in forward flight (001 Sec. {_section}).",
+        description=f"Quad-plane mission; the {_sensor} reads zero from 45 s, in forward flight (Larocque 2023 "
+                    f"Sec. {_section}).",
     ))
 # False alarms over many fault-free hours: each episode draws its own mean wind (0-9 m/s, any direction, light
 # turbulence; benchmark.random_wind) and flies three laps (~4.3 min airborne); 140 episodes ~ 10 flight hours.
@@ -296,6 +304,7 @@ for _name, _kind in (("none", None), ("icing", "propeller_icing"), ("viscous", "
         policies=("pitot-only",),
         episodes=4,
         detector="propulsion_bayes",
-        description=(f"Quad-plane 300 s cruise; {_kind} x1.1 over 50 s from 100 s (003 Sec. IV-A)" if _kind else
+        description=(f"Quad-plane 300 s cruise; {_kind} x1.1 over 50 s from 100 s (Haaland et al. Sec. IV-A)"
+                     if _kind else
                      "Quad-plane 300 s cruise, no fault: propulsion_bayes false alarms") + ".",
     ))

@@ -33,7 +33,8 @@ from ftcgym.fdd import published_detector
 BEFORE_S, AFTER_S = 1.0, 3.0     # default window around the fault onset
 FPS = 30
 SIZE = (640, 480)               # pixels, width x height
-MISSING_EXTRA = "writing a video needs imageio and imageio-ffmpeg: pip install 'ftcgym[video]'"
+MISSING_EXTRA = ("writing a video needs imageio and imageio-ffmpeg: pip install -c constraints.txt -e '.[video]' in "
+                 "the ftcgym clone")
 
 WHITE, DIM = (255, 255, 255), (150, 150, 150)
 RED, ORANGE, GREEN = (255, 90, 80), (255, 180, 60), (110, 230, 120)

@@ -27,7 +27,7 @@ def add_study_options(parser, episodes: int) -> None:
                         help="run seed, as ftcgym bench --seed")
     parser.add_argument("--policy", default="oracle-airspeed", metavar="NAME", type=policy_name,
                         help="policy flying the episodes (default: oracle-airspeed, which does not react to the "
-                             "pitot, as in 001's offline injection)")
+                             "pitot, as in Larocque 2023's offline injection)")
     parser.add_argument("--env-kwargs", type=json_object, default=None, metavar="JSON",
                         help="merged into the scenario's env kwargs")
     parser.add_argument("--detector-kwargs", type=json_object, default=None, metavar="JSON",

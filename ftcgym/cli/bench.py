@@ -76,12 +76,21 @@ def bench(args, argv: list[str], scenarios) -> int:
 def listing() -> str:
     """The scenarios (default ones starred), policies and detectors, each with its one-line description."""
     from ftcgym.agents import POLICIES
-    from ftcgym.benchmark.scenarios import SCENARIOS
+    from ftcgym.benchmark.scenarios import PLUG_INS, SCENARIOS, get_scenario, scenario_names
     from ftcgym.fdd import DETECTORS
 
-    width = max(map(len, [*SCENARIOS, *POLICIES, *DETECTORS]))
+    scenarios = scenario_names()
+    width = max(map(len, [*scenarios, *POLICIES, *DETECTORS]))
     lines = ["scenarios (* = run by default; or MODULE:ATTR):"]
-    lines += [f"  {name:<{width}} {'*' if s.default else ' '} {s.description}" for name, s in SCENARIOS.items()]
+    for name in scenarios:
+        scenario = SCENARIOS.get(name)
+        if scenario is None:              # an installed plug-in: its own description, if it loads
+            try:
+                scenario = get_scenario(name)
+            except (ValueError, TypeError):
+                lines += [f"  {name:<{width}}   {PLUG_INS.describe(name)}"]
+                continue
+        lines += [f"  {name:<{width}} {'*' if scenario.default else ' '} {scenario.description}".rstrip()]
     for title, registry in (("policies", POLICIES), ("detectors", DETECTORS)):
         lines += [f"{title} (or MODULE:ATTR):"]
         lines += [f"  {name:<{width}}   {registry.describe(name)}".rstrip() for name in registry]

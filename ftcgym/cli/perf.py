@@ -5,8 +5,8 @@ Quadrotor-v0 with random actions (at 240/240 Hz, 240/30 Hz and the 500/500 Hz de
 controller in the loop, and for QuadPlane-v0 with random actions (500 Hz physics, agent at 100 and 500 Hz) and
 with the mission autopilot, both with resets included and step time only; mean reset time; peak resident memory
 and its growth over the run (a leak check); and the cost of one update of each fault detector, alone and with the
-outputs and status its wrapper reads every step (000 reports 18 us per step on a Cortex-A9 in C++, the budget
-the table marks). Sensors, Dryden wind and a fault schedule are on in every case.
+outputs and status its wrapper reads every step (Strack van Schijndel et al. 2023 report 18 us per step on a
+Cortex-A9 in C++, the budget the table marks). Sensors, Dryden wind and a fault schedule are on in every case.
 
 The reference is a bare PyBullet loop measured in the same run: the ground plane and one box, per physics step
 one force and one torque applied, a step and a state read (position, orientation, velocity), as the envs do.
@@ -339,7 +339,7 @@ def run(args, argv: list[str] | None = None) -> int:
           "time inside PyBullet")
     print(f"\ndetector cost per sample (us), best of 3 replays of a recorded flight of its vehicle, the detectors in "
           f"turns; budget "
-          f"{DETECTOR_BUDGET_US:g} us per update (000, Cortex-A9, C++):")
+          f"{DETECTOR_BUDGET_US:g} us per update (Strack van Schijndel et al. 2023, Cortex-A9, C++):")
     print(f"  {'detector':17} {'update':>8} {'+outputs,status':>16}  budget")
     for name, c in costs.items():
         verdict = "under" if c["update_us"] < DETECTOR_BUDGET_US else "OVER"

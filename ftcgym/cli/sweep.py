@@ -14,11 +14,13 @@ from .common import json_object, positive_int
 def add_parser(subparsers) -> None:
     parser = subparsers.add_parser(
         "sweep", help="parameter sweep: parameter sets x scenarios x seeds, per-set results and plots",
-        description="Fly every parameter set of a sweep config (YAML, or the built-in fig11: 000 Fig. 11) over "
+        description="Fly every parameter set of a sweep config (YAML, or the built-in fig11: Fig. 11 of Strack van "
+                    "Schijndel et al. 2023) over "
                     "its scenarios and seeds, on worker processes or Ray; rows are journaled as they finish, "
                     "so --resume continues an interrupted sweep.")
     parser.add_argument("config", metavar="CONFIG",
-                        help="sweep config YAML, or a built-in name (fig11: 000 Fig. 11, 19 sets x 33 flights)")
+                        help="sweep config YAML, or a built-in name (fig11: Fig. 11 of Strack van Schijndel et al. "
+                             "2023, 19 sets x 33 flights)")
     parser.add_argument("--out", metavar="DIR", help="output folder (default: sweep_out/<config name>)")
     parser.add_argument("--resume", action="store_true",
                         help="continue the sweep in --out, skipping the episodes it already finished")

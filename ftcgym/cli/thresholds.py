@@ -1,5 +1,5 @@
-"""`ftcgym thresholds`: false-detection probability (001 eq. 40-41) and proposed thresholds for the airdata_ekf
-criteria, from fault-free flights (`ftcgym.benchmark.airdata_study`, `ftcgym.fdd.false_alarm`)."""
+"""`ftcgym thresholds`: false-detection probability (Larocque 2023 eq. 40-41) and proposed thresholds for the
+airdata_ekf criteria, from fault-free flights (`ftcgym.benchmark.airdata_study`, `ftcgym.fdd.false_alarm`)."""
 from __future__ import annotations
 
 import json
@@ -12,15 +12,15 @@ from .common import scenario_name
 
 def add_parser(subparsers) -> None:
     parser = subparsers.add_parser(
-        "thresholds", help="false-detection probability (001 eq. 40-41) and proposed thresholds",
+        "thresholds", help="false-detection probability (Larocque 2023 eq. 40-41) and proposed thresholds",
         description="From fault-free airdata_ekf signals (flown, or --load), print each criterion's false-"
-                    "detection probability per flight hour (001 eq. 40-41), the autocorrelation check of 001 "
-                    "Fig. 4 and the threshold that meets --target.")
+                    "detection probability per flight hour (Larocque 2023 eq. 40-41), the autocorrelation check of "
+                    "Larocque 2023 Fig. 4 and the threshold that meets --target.")
     parser.add_argument("--scenario", default="qp-no-fault-long", metavar="NAME", type=scenario_name,
                         help="fault-free airdata_ekf scenario to fly (default: qp-no-fault-long)")
     add_study_options(parser, episodes=4)
     parser.add_argument("--target", type=float, default=1e-3, metavar="P",
-                        help="false detection probability per flight hour (default 1e-3: 001's 0.1%%)")
+                        help="false detection probability per flight hour (default 1e-3: Larocque 2023's 0.1%%)")
     parser.add_argument("--tail", default="auto", choices=TAILS, help="tail model (default auto)")
     parser.add_argument("--save", metavar="NPZ", help="save the fault-free signals flown")
     parser.add_argument("--load", metavar="NPZ", help="use saved signals instead of flying")
@@ -53,7 +53,7 @@ def run(args, argv: list[str]) -> int:
         print(json.dumps(rows, indent=1))
         return 0
     print(f"fault-free samples: {rows[0]['samples'] if rows else 0} at {EKF_HZ:g} Hz ({rows[0]['hours']:.2f} h); "
-          f"target {args.target:g} false detections per flight hour (001 eq. 40-41)")
+          f"target {args.target:g} false detections per flight hour (Larocque 2023 eq. 40-41)")
     head = ("criterion", "Z", "T s", "n", "p_single", "p_seq", "p_flight/h (eq. 41)", "runs/h seen", "rho1",
             "max|rho|", "indep", "proposed Z", "method")
     print(" | ".join(head))

@@ -17,7 +17,7 @@ def add_parser(subparsers) -> None:
         description="Fly one episode of a benchmark scenario and write a video of it: from --before s before the "
                     "fault's onset to --after s after it (the whole episode without a fault), headless, with an "
                     "overlay of the time, the fault, the detector's alarm and the recovery. Needs the video extra "
-                    "(pip install 'ftcgym[video]').")
+                    "(pip install -c constraints.txt -e '.[video]' in the ftcgym clone).")
     parser.add_argument("--scenario", required=True, type=scenario, metavar="NAME",
                         help="benchmark scenario (see `ftcgym bench --list`), or MODULE:ATTR")
     parser.add_argument("--policy", type=policy_name, metavar="NAME",

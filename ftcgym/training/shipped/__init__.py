@@ -26,8 +26,8 @@ def load_shipped(policy: str, env):
     try:
         from ftcgym.training.policy import load_policy
     except ImportError as error:
-        raise ImportError(f"policy {policy!r} needs stable-baselines3 and torch: pip install -e '.[train]' "
-                          f"({error})") from error
+        raise ImportError(f"policy {policy!r} needs stable-baselines3 and torch: pip install -c constraints.txt "
+                          f"-e '.[train]' in the ftcgym clone ({error})") from error
     return load_policy(shipped_path(policy), env)
 
 
