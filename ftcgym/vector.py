@@ -4,9 +4,12 @@ Gymnasium's `AsyncVectorEnv` sends each step's actions and results through a pip
 the round trip (about 100 us on a 2-core machine, process wake-ups included) costs more than a whole ftcgym
 step, so two async envs step slower than one env alone (docs/performance.md). Here the calling process steps a
 share of the envs itself while each worker process steps its own share, in lockstep. Actions, observations,
-rewards and flags live in shared memory, and each side waits for the other by polling a semaphore (no system
-call) for `spin_seconds` before it sleeps on it: a step costs the slowest share plus a few microseconds, and a
-long pause (a policy update) does not keep a core busy. An `info` travels through a pipe, and only when an env
+rewards and flags live in shared memory, and each side waits for the other by polling a semaphore for
+`spin_seconds` before it sleeps on it: a step costs the slowest share plus a few microseconds, and a long pause
+(a policy update) does not keep a core busy. Between polls the waiting side yields its core (`os.sched_yield`),
+which costs nothing when the machine has a core to spare and, when other processes want more cores than there
+are, lets the side it waits for run: polling without yielding made two envs 10-90 times slower than one env
+under one busy process on 2 cores (docs/measurements.md, 'The parallel vector env on a busy machine'). An `info` travels through a pipe, and only when an env
 returned a non-empty one (`info_level="none"` sends nothing).
 
 The semantics are those of `gymnasium.vector.SyncVectorEnv`: the autoreset modes next-step (the default) and
@@ -465,13 +468,19 @@ class _Worker:
         self.pipe.close()
 
 
+#: gives up the core to any other runnable process (module docstring); where the OS has no sched_yield, a
+#: zero sleep does the same
+_yield = getattr(os, "sched_yield", lambda: time.sleep(0))
+
+
 def _wait(semaphore, spin_seconds: float, alive) -> bool:
-    """Acquire `semaphore`: poll it (no system call) for spin_seconds, then sleep on it, asking `alive()` every
-    half second whether the other side is still there; False if it is gone."""
+    """Acquire `semaphore`: poll it for spin_seconds, yielding the core between polls, then sleep on it, asking
+    `alive()` every half second whether the other side is still there; False if it is gone."""
     if semaphore.acquire(False):
         return True
     deadline = time.perf_counter() + spin_seconds
     while time.perf_counter() < deadline:
+        _yield()
         if semaphore.acquire(False):
             return True
     while not semaphore.acquire(timeout=0.5):

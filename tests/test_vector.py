@@ -150,3 +150,25 @@ def test_spawned_workers_give_the_same_results():
     finally:
         sync.close()
         spawned.close()
+
+
+class _Slow:
+    """A semaphore that is free from its fourth poll on."""
+
+    def __init__(self):
+        self.polls = 0
+
+    def acquire(self, block=True, timeout=None):
+        self.polls += 1
+        return self.polls > 3
+
+
+def test_a_waiting_side_yields_its_core_between_polls(monkeypatch):
+    import ftcgym.vector as vector
+    yields = []
+    monkeypatch.setattr(vector, "_yield", lambda: yields.append(1))
+    semaphore = _Slow()
+    assert vector._wait(semaphore, 1.0, lambda: True)
+    assert semaphore.polls == 4 and len(yields) == 3      # one yield before each poll after the first
+    semaphore = _Slow()                                    # no polling time: the blocking acquire, no yield
+    assert vector._wait(semaphore, 0.0, lambda: True) and semaphore.polls == 4 and len(yields) == 3
