@@ -60,7 +60,7 @@ def test_vehicle_overrides_out_of_range_fail_at_reset_too():
     ({"kind": "sensor_bias", "target": "gyro", "magnitude": [1, 2]}, "faults[0].magnitude: expected 3 numbers"),
     ({"kind": "sensor_bias", "target": "gyro", "magnitude": "x"}, "faults[0].magnitude: expected a number"),
     ({"kind": "payload", "magnitude": -0.5}, "the payloads take the mass to -0.126 kg (vehicle 0.374 kg)"),
-    ({"kind": "loe", "target": 0, "magnitude": None}, "faults[0].magnitude: loe needs a magnitude"),
+    ({"kind": "loe", "target": 0, "magnitude": 0.0}, "faults[0].magnitude: must be in (0, 1], got 0.0"),
     ({"kind": "rotor_loss", "target": 0, "magnitude": 0.5}, "rotor_loss is a total loss, so its magnitude is 1"),
     ({"kind": "loe", "target": [0, 0]}, "faults[0].target: [0, 0] is not accepted for loe"),
     ({"kind": "sensor_dropout", "target": "gyro", "magnitude": 2.0}, "sensor_dropout takes no magnitude"),

@@ -56,6 +56,19 @@ def test_propulsion_faults_rise_along_a_sigmoid_to_1_1_over_50_s(kind, parameter
     assert set(others.values()) == {1.0}
 
 
+def test_a_field_given_as_none_takes_its_default():
+    """A FaultSpec leaves the fields it is not given at None; a dict may say None: both mean the default."""
+    from ftcgym.models.faults import FaultSpec
+    default = parse_faults([{"kind": "viscous_friction", "time": 0.5}], 4, SENSORS, QUADPLANE_KINDS)
+    for spec in ({"kind": "viscous_friction", "time": 0.5, "duration": None, "magnitude": None},
+                 FaultSpec("viscous_friction", time=0.5)):
+        assert parse_faults([spec], 4, SENSORS, QUADPLANE_KINDS) == default
+    assert default[0].duration == 50.0 and default[0].magnitude == 1.1
+    assert schedule(FaultSpec("viscous_friction", time=0.5)).propulsion_factors(25.5)["c_v"] == pytest.approx(1.05)
+    [loe] = parse_faults([FaultSpec("loe", target=0)], 4, SENSORS, QUADPLANE_KINDS)
+    assert loe.magnitude == 0.5 and loe.rate is None
+
+
 def test_bad_quadplane_fault_specs_name_the_field():
     with pytest.raises(ValueError, match=r"faults\[0\].target.*pitot blockage mode"):
         parse_faults([{"kind": "pitot_blockage", "target": "half"}], 4, SENSORS, QUADPLANE_KINDS)

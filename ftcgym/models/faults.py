@@ -101,6 +101,7 @@ def _parse_one(spec, index: int, n_rotors: int, sensors, kinds) -> FaultSpec:
     if not isinstance(spec, dict):
         raise ValueError(f"{where}: expected a dict with keys {list(_FIELDS)}, got {type(spec).__name__}")
     no_unknown(spec, _FIELDS, f"{where} key")
+    spec = {key: value for key, value in spec.items() if value is not None}   # None: the field's default
     kind = spec.get("kind")
     if not isinstance(kind, str) or kind not in kinds:
         raise ValueError(f"{where}.kind: {kind!r} is not a fault kind of this vehicle; accepted: {list(kinds)}")
@@ -156,9 +157,7 @@ def _check_time(time, where):
 def _check_magnitude(kind, magnitude, where, size: int):
     """The magnitude a kind accepts: none for the kinds without one (skew_sensor: optional), a number or one
     per element of the channel for sensor_bias, exactly 1 for rotor_loss."""
-    if magnitude is None:
-        if _DEFAULT_MAGNITUDE[kind] is not None:
-            raise ValueError(f"{where}: {kind} needs a magnitude (default {_DEFAULT_MAGNITUDE[kind]}); got None")
+    if magnitude is None:                      # only for the kinds without a default magnitude (_parse_one)
         return None
     if _DEFAULT_MAGNITUDE[kind] is None and kind != "skew_sensor":
         raise ValueError(f"{where}: {kind} takes no magnitude; leave it out (got {magnitude!r})")
