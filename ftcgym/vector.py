@@ -8,9 +8,9 @@ rewards and flags live in shared memory, and each side waits for the other by po
 `spin_seconds` before it sleeps on it: a step costs the slowest share plus a few microseconds, and a long pause
 (a policy update) does not keep a core busy. Between polls the waiting side yields its core (`os.sched_yield`),
 which costs nothing when the machine has a core to spare and, when other processes want more cores than there
-are, lets the side it waits for run: polling without yielding made two envs 10-90 times slower than one env
-under one busy process on 2 cores (docs/measurements.md, 'The parallel vector env on a busy machine'). An `info` travels through a pipe, and only when an env
-returned a non-empty one (`info_level="none"` sends nothing).
+are, lets the side it waits for run: polling without yielding made the pair 5 to 100 times slower than one
+env beside one busy process on 2 cores (docs/measurements.md, 'The parallel vector env on a busy machine'). An
+`info` travels through a pipe, and only when an env returned a non-empty one (`info_level="none"` sends nothing).
 
 The semantics are those of `gymnasium.vector.SyncVectorEnv`: the autoreset modes next-step (the default) and
 same-step, the same batched `info`, the same observations for the same seeds. Workers default to one per core

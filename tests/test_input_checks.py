@@ -222,3 +222,56 @@ def test_human_render_without_a_display_raises_before_connecting(monkeypatch):
     with pytest.raises(RuntimeError, match="the display ':4321' does not answer"):
         check_display()
     assert connected_clients() == before
+
+
+@pytest.mark.parametrize("detector, env_id, message", [
+    ("airdata_ekf", "ftcgym/Quadrotor-v0", "detector 'airdata_ekf': runs on the quad-plane (QuadPlane-v0, "
+                                           "QuadPlaneAutopilot-v0), not on QuadrotorEnv (parameter set 'bebop2')"),
+    ("propulsion_bayes", "ftcgym/Quadrotor-v0", "detector 'propulsion_bayes': runs on the quad-plane"),
+    ("loe_kalman", "ftcgym/QuadPlane-v0", "detector 'loe_kalman': runs on the quadrotor (Quadrotor-v0), not on "
+                                          "QuadPlaneEnv (parameter set 'vsqp')"),
+    ("loe_cusum", "ftcgym/QuadPlane-v0", "detector 'loe_cusum': runs on the quadrotor"),
+    ("aekf", "ftcgym/QuadPlaneAutopilot-v0", "detector 'aekf': runs on the quadrotor"),
+    ("iv_change", "ftcgym/QuadPlane-v0", "detector 'iv_change': runs on the quadrotor"),
+])
+def test_a_detector_on_the_other_vehicle_says_which_it_runs_on(detector, env_id, message):
+    from ftcgym.fdd import wrap_with_detector
+    env = gym.make(env_id)
+    with pytest.raises(ValueError, match=re.escape(message)):
+        wrap_with_detector(detector, env)
+    env.close()
+
+
+def test_a_detector_needs_the_time_in_info():
+    from ftcgym.fdd import wrap_with_detector
+    with pytest.raises(ValueError, match=r"reads info\['time'\], which info_level='none' leaves out"):
+        wrap_with_detector("loe_kalman", gym.make(Q, info_level="none"))
+    env = wrap_with_detector("loe_kalman", gym.make(Q, info_level="minimal"))
+    _, info = env.reset(seed=0)
+    assert info["fdd"]["loe_kalman"]["alarm"] is False
+    env.close()
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"observation_format": "flat"}, "observation_format: QuadPlaneAutopilot-v0 takes only 'dict'"),
+    ({"info_level": "minimal"}, "info_level: QuadPlaneAutopilot-v0 takes only 'full'"),
+])
+def test_the_autopilot_env_refuses_what_its_autopilot_cannot_fly_with(kwargs, message):
+    with pytest.raises(ValueError, match=re.escape(message)):
+        gym.make(AUTOPILOT, **kwargs)
+
+
+@pytest.mark.parametrize("policy, make, message", [
+    ("nominal", lambda: gym.make(Q, observation_format="flat"),
+     "policy: 'nominal' reads the observation by name: make the env with observation_format='dict'"),
+    ("autopilot", lambda: gym.make("ftcgym/QuadPlane-v0", observation_format="flat"),
+     "policy: 'autopilot' reads the observation by name"),
+    ("ftc-spin", lambda: gym.make("ftcgym/RotorLossRecovery-v0"),
+     "policy: 'ftc-spin' flies Quadrotor-v0, QuadPlane-v0 or QuadPlaneAutopilot-v0, not RotorLossRecoveryEnv"),
+    ("nominal", lambda: None, "policy: 'nominal' flies Quadrotor-v0, QuadPlane-v0 or QuadPlaneAutopilot-v0, not "
+                              "NoneType"),
+])
+def test_a_built_in_policy_says_which_envs_it_flies(policy, make, message):
+    from ftcgym.agents import make_policy
+    with pytest.raises(ValueError, match=re.escape(message)):
+        make_policy(policy, make())

@@ -6,6 +6,8 @@ A policy entry is a class or factory called with the env (wrapped or not) that r
 """
 from __future__ import annotations
 
+from gymnasium import spaces
+
 from ftcgym.registry import Entry, Registry
 
 from ..models.vsqp import VsqpParams
@@ -70,8 +72,21 @@ def flies_airspeed(env) -> bool:
     return getattr(env.unwrapped, "controls", None) == "airspeed"
 
 
+def check_flown_env(env, name: str):
+    """`env`'s base env, if a built-in policy can fly it: a simulator env (Quadrotor-v0, QuadPlane-v0,
+    QuadPlaneAutopilot-v0) with its Dict observation, which the policies read by name; else a ValueError."""
+    base = getattr(env, "unwrapped", None)
+    if not hasattr(base, "params") or not hasattr(base, "agent_hz"):
+        raise ValueError(f"policy: {name!r} flies Quadrotor-v0, QuadPlane-v0 or QuadPlaneAutopilot-v0, not "
+                         f"{type(base if base is not None else env).__name__}")
+    if not isinstance(env.observation_space, spaces.Dict):
+        raise ValueError(f"policy: {name!r} reads the observation by name: make the env with "
+                         f"observation_format='dict' (the default), not {type(env.observation_space).__name__}")
+    return base
+
+
 def _quadrotor(env, name: str):
-    base = env.unwrapped
+    base = check_flown_env(env, name)
     if is_quadplane(env):
         raise ValueError(f"policy: {name!r} flies the quadrotor, not {type(base).__name__}; accepted: "
                          f"{_accepted(env)}")
@@ -79,7 +94,7 @@ def _quadrotor(env, name: str):
 
 
 def _quadplane(env, name: str, airspeed: bool):
-    base = env.unwrapped
+    base = check_flown_env(env, name)
     if not is_quadplane(env) or flies_airspeed(env) != airspeed:
         raise ValueError(f"policy: {name!r} does not fly {type(base).__name__}; accepted: {_accepted(env)}")
     return base

@@ -61,9 +61,9 @@ from numba.core.errors import TypingError
 
 from ..models.constants import GRAVITY
 from ..models.geometry import euler_from_quat, rotation_from_euler, skew_matrix
-from ..models.quadrotor import YAW_SIGNS, rotor_wrench_matrix
+from ..models.quadrotor import YAW_SIGNS, QuadrotorParams, rotor_wrench_matrix
 from ..settings import updated
-from .base import ARRAY_TYPES, AlarmLatch
+from .base import ARRAY_TYPES, AlarmLatch, vehicle_params
 from .wrapper import DetectorWrapper
 
 N_X = 21
@@ -329,8 +329,9 @@ class AugmentedEkfDetector:
 
 def aekf_wrapper(env, **kwargs) -> DetectorWrapper:
     """`env` wrapped with an `AugmentedEkfDetector` built from its nominal parameters and agent rate."""
-    base = env.unwrapped
-    return DetectorWrapper(env, AugmentedEkfDetector.from_params(base.params, 1.0 / base.agent_hz, **kwargs))
+    params = vehicle_params(env, "aekf", QuadrotorParams)
+    return DetectorWrapper(env, AugmentedEkfDetector.from_params(params, 1.0 / env.get_wrapper_attr("agent_hz"),
+                                                                 **kwargs))
 
 
 # ---------------------------------------------------------------------------------------- helpers

@@ -87,9 +87,10 @@ from ..models.geometry import rotation_matrix
 from ..models.pusher import TWO_PI, pusher_constants, thrust
 from ..models.pyfloat import py_pow
 from ..models.quadplane_aero import aero_model, fuselage_loads, speed_squared, wing_flow_loads
+from ..models.vsqp import VsqpParams
 from ..settings import updated
 from . import kalman
-from .base import ARRAY_TYPES, biquad_constants, biquad_step, model_with_error
+from .base import ARRAY_TYPES, biquad_constants, biquad_step, model_with_error, vehicle_params
 from .pitot_detection import (
     C_ALARM,
     C_ALARM_TIME,
@@ -1141,6 +1142,7 @@ def airdata_ekf_wrapper(env, params="vehicle", **kwargs):
     """`env` (QuadPlane-v0 or QuadPlaneAutopilot-v0) wrapped with an AirdataEkfDetector at the env's agent
     rate; params="vehicle" reads the env's parameter set (the detector then errs by `coefficient_error`)."""
     from .wrapper import DetectorWrapper
+    vehicle = vehicle_params(env, "airdata_ekf", VsqpParams)
     if isinstance(params, str) and params == "vehicle":
-        params = env.get_wrapper_attr("params")
+        params = vehicle
     return DetectorWrapper(env, AirdataEkfDetector(params, env.get_wrapper_attr("agent_hz"), **kwargs))

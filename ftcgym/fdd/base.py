@@ -13,6 +13,24 @@ import numpy as np
 from numba import njit
 from scipy import signal
 
+from ..models.quadrotor import QuadrotorParams
+from ..models.vsqp import VsqpParams
+
+
+def vehicle_params(env, detector: str, kind: type):
+    """The nominal parameter set of `env`'s vehicle, which must be a `kind` (`QuadrotorParams` or `VsqpParams`):
+    a detector built on one vehicle's model does not run on the other, and says so (ValueError)."""
+    params = env.get_wrapper_attr("params")
+    if not isinstance(params, kind):
+        raise ValueError(f"detector {detector!r}: runs on {_VEHICLES[kind]}, not on {type(env.unwrapped).__name__} "
+                         f"(parameter set {getattr(params, 'name', '?')!r})")
+    return params
+
+
+_VEHICLES = {QuadrotorParams: "the quadrotor (Quadrotor-v0)",
+             VsqpParams: "the quad-plane (QuadPlane-v0, QuadPlaneAutopilot-v0)"}
+
+
 #: the reading types the detectors' compiled steps take as they come (numba converts or rejects their dtypes);
 #: anything else is converted in Python first: `ARRAY_TYPES.issuperset(map(type, readings))`
 ARRAY_TYPES = frozenset({np.ndarray})

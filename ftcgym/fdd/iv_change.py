@@ -93,9 +93,9 @@ from scipy import signal
 
 from ..models.constants import GRAVITY
 from ..models.geometry import euler_from_quat, rotation_matrix
-from ..models.quadrotor import rotor_wrench_matrix
+from ..models.quadrotor import QuadrotorParams, rotor_wrench_matrix
 from ..settings import updated
-from .base import ARRAY_TYPES, AlarmLatch
+from .base import ARRAY_TYPES, AlarmLatch, vehicle_params
 from .wrapper import DetectorWrapper
 
 READ_KEYS = ("gyro", "accel", "reference_position", "reference_velocity", "reference_yaw")
@@ -726,8 +726,9 @@ class SixDofResidual:
 
 def iv_change_wrapper(env, **kwargs) -> DetectorWrapper:
     """`env` wrapped with an `IvChangeDetector` built from its parameter set and agent rate."""
-    base = env.unwrapped
-    return DetectorWrapper(env, IvChangeDetector.from_params(base.params, 1.0 / base.agent_hz, **kwargs))
+    params = vehicle_params(env, "iv_change", QuadrotorParams)
+    return DetectorWrapper(env, IvChangeDetector.from_params(params, 1.0 / env.get_wrapper_attr("agent_hz"),
+                                                             **kwargs))
 
 
 # ----------------------------------------------------------------------------------------- helpers

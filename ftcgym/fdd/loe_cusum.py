@@ -44,8 +44,9 @@ import numpy as np
 from numba import njit
 
 from ..models.constants import GRAVITY
+from ..models.quadrotor import QuadrotorParams
 from ..settings import updated
-from .base import AlarmLatch, biquad_constants, biquad_step
+from .base import AlarmLatch, biquad_constants, biquad_step, vehicle_params
 from .loe_kalman import NO_ALARM, NON_FINITE, TABLE_II, _sample, effectiveness_matrix, lowpass_coefficients
 
 CUSUM_CEILING = 1e6  # the published statistics are clipped here (they are unbounded after a loss)
@@ -274,13 +275,11 @@ def loe_cusum_wrapper(env, G="vehicle", G_scale: float = 1.0, motor="vehicle", *
     from the same set (settings given as keywords win).
     """
     from .wrapper import DetectorWrapper
+    params = vehicle_params(env, "loe_cusum", QuadrotorParams)
     dt = 1.0 / env.get_wrapper_attr("agent_hz")
-    params = None
     if isinstance(G, str) and G == "vehicle":
-        params = env.get_wrapper_attr("params")
         G = params.effectiveness_G
     if isinstance(motor, str) and motor == "vehicle":
-        params = params or env.get_wrapper_attr("params")
         motor = {"motor_time_constant": params.motor_time_constant, "omega_min": params.omega_min,
                  "omega_max": params.omega_max}
     return DetectorWrapper(env, LoeCusumDetector(dt, G=tuple(np.asarray(G) * G_scale), **{**(motor or {}), **kwargs}))

@@ -30,9 +30,10 @@ from scipy import signal
 from scipy.special import erf
 
 from ..models.constants import GRAVITY
+from ..models.quadrotor import QuadrotorParams
 from ..settings import updated
 from . import kalman
-from .base import AlarmLatch, biquad_constants, biquad_step
+from .base import AlarmLatch, biquad_constants, biquad_step, vehicle_params
 
 #: 000 eq. (9): signs of each rotor's contribution to p_dot, q_dot and a_z for rotors r1..r4 of Fig. 2.
 SIGNS_000 = np.array([[1.0, -1.0, -1.0, 1.0],
@@ -323,9 +324,10 @@ def loe_kalman_wrapper(env, G="vehicle", G_scale: float = 1.0, **kwargs):
     multiplies G, e.g. 0.8 or 1.2 for 000 Fig. 11's +-20% sensitivity study.
     """
     from .wrapper import DetectorWrapper
+    params = vehicle_params(env, "loe_kalman", QuadrotorParams)
     dt = 1.0 / env.get_wrapper_attr("agent_hz")
     if isinstance(G, str) and G == "vehicle":
-        G = env.get_wrapper_attr("params").effectiveness_G
+        G = params.effectiveness_G
     return DetectorWrapper(env, LoeKalmanDetector(dt, G=tuple(np.asarray(G) * G_scale), **kwargs))
 
 

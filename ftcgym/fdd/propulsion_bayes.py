@@ -67,9 +67,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..models.pusher import TWO_PI, pusher_aero_torque
+from ..models.vsqp import VsqpParams
 from ..settings import updated
 from . import kalman
-from .base import AlarmLatch, model_with_error
+from .base import AlarmLatch, model_with_error, vehicle_params
 from .wrapper import DetectorWrapper
 
 MODES = ("no_fault", "propeller_icing", "viscous_friction", "static_friction")   # 003 Sec. II-B, m = 0..3
@@ -524,6 +525,7 @@ class PropulsionBayesWrapper(DetectorWrapper):
 def propulsion_bayes_wrapper(env, params="vehicle", **kwargs):
     """`env` (QuadPlaneAutopilot-v0, or QuadPlane-v0) wrapped with a PropulsionBayesDetector at the env's agent
     rate; params="vehicle" reads the env's parameter set (the detector then errs by `coefficient_error`)."""
+    vehicle = vehicle_params(env, "propulsion_bayes", VsqpParams)
     if isinstance(params, str) and params == "vehicle":
-        params = env.get_wrapper_attr("params")
+        params = vehicle
     return PropulsionBayesWrapper(env, PropulsionBayesDetector(params, env.get_wrapper_attr("agent_hz"), **kwargs))

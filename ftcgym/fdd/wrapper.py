@@ -24,7 +24,11 @@ class DetectorWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         gym.utils.RecordConstructorArgs.__init__(self, detector=detector)  # lets env.spec describe the wrapper
         super().__init__(env)
         if not isinstance(env.observation_space, spaces.Dict):
-            raise ValueError("DetectorWrapper: the env's observation_space must be a Dict of sensor readings")
+            raise ValueError("DetectorWrapper: the env's observation_space must be a Dict of sensor readings "
+                             "(observation_format='dict', the default)")
+        if getattr(env.unwrapped, "info_level", "full") == "none":
+            raise ValueError("DetectorWrapper: the detector reads info['time'], which info_level='none' leaves out; "
+                             "make the env with info_level 'minimal' or 'full' (the default)")
         self.detector = detector
         self.prefix = f"fdd/{detector.name}/"
         extra = {self.prefix + field: spaces.Box(low, high, shape, np.float64)

@@ -3,7 +3,8 @@ is the airspeed (m/s) the autopilot schedules on (wing skew, surface effectivene
 `agents.quadplane_autopilot`). A policy thus chooses or blends the airspeed source: the pitot reading, a
 synthetic estimate (the `airdata_ekf` detector's), or anything in between.
 
-Same kwargs, observation and `info` contract as QuadPlane-v0, plus the observation `mission_phase` (index in
+Same kwargs, observation and `info` contract as QuadPlane-v0 (but only the Dict observation and the full `info`),
+plus the observation `mission_phase` (index in
 `PHASES`) and `info["mission"]` = {"phase", "airspeed_used", "cruise_airspeed"}. Action: Box(0, 60, (1,)) m/s,
 clipped; a
 non-finite or wrongly shaped action raises ValueError. Reward per step: 1 - min(|a - V_true|, 10) / 10 (how
@@ -36,6 +37,11 @@ class QuadPlaneAutopilotEnv(gym.Env):
     controls = "airspeed"          # what the action commands (QuadrotorEnv: "rotors", QuadPlaneEnv: "actuators")
 
     def __init__(self, **kwargs):
+        for key, only, why in (("observation_format", "dict", "the autopilot reads the readings by name; gymnasium's "
+                                "FlattenObservation flattens them"),
+                               ("info_level", "full", "the reward is the error to info['truth']['airspeed']")):
+            if kwargs.get(key, only) != only:
+                raise ValueError(f"{key}: QuadPlaneAutopilot-v0 takes only {only!r} ({why}), got {kwargs[key]!r}")
         task = make_task(kwargs.get("task", "mission"))
         if not isinstance(task, MissionTask):
             raise ValueError(f"task: the autopilot flies a mission; accepted: 'mission' or a dict with name "

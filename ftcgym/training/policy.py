@@ -27,6 +27,7 @@ import numpy as np
 
 from ftcgym.agents import flies_airspeed, is_quadplane, make_policy
 from ftcgym.agents.base import UP
+from ftcgym.agents.catalogue import check_flown_env
 from ftcgym.agents.spin_recovery import SpinRecoveryController, thrust_axis_reference_for
 from ftcgym.models.geometry import rotation_matrix
 from ftcgym.task_envs.airspeed_source import DETECTOR as AIRSPEED_DETECTOR
@@ -171,7 +172,7 @@ def load_policy(path, env):
     """The model saved by `ftcgym train` at `path` as a benchmark policy for `env`, with the policy class
     of the env id it was trained on (`POLICY_CLASSES`; `LearnedPolicy` for any other id)."""
     env_id = trained_env_id(path)
-    _check_vehicle(path, env_id, env.unwrapped)
+    _check_vehicle(path, env_id, check_flown_env(env, str(path)))
     return POLICY_CLASSES.get(env_id, LearnedPolicy).load(path, env)
 
 
