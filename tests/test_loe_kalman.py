@@ -1,5 +1,6 @@
 """loe_kalman (000 Sec. IV): the Kalman step, the probability test, the filter, and detection in the simulator."""
 import math
+import re
 
 import numpy as np
 import pytest
@@ -14,6 +15,7 @@ from ftcgym.fdd import LoeKalmanDetector, loe_kalman_wrapper
 from ftcgym.fdd.base import Biquad, biquad_constants, biquad_step
 from ftcgym.fdd.loe_kalman import (
     SIGNS_000,
+    LoeKalmanSettings,
     _failure_probability,
     _kalman_step,
     failure_probability,
@@ -138,8 +140,27 @@ def test_not_armed_on_the_ground():
 
 @pytest.mark.parametrize("R", [0.0, -1.0, float("nan")])
 def test_measurement_noise_must_be_positive(R):
-    with pytest.raises(ValueError, match="R: must be a finite number > 0"):
+    with pytest.raises(ValueError, match=r"loe_kalman.R: must be (> 0|finite \(no NaN or inf\)), got"):
         LoeKalmanDetector(1 / 500, R=R)
+    with pytest.raises(ValueError, match="R: must be a finite number > 0"):     # a settings object is checked too
+        LoeKalmanDetector(1 / 500, LoeKalmanSettings(R=R))
+
+
+@pytest.mark.parametrize("overrides, message", [
+    ({"G": [float("nan"), 1, 1]}, "loe_kalman.G[0]: must be finite (no NaN or inf), got nan"),
+    ({"G": [1e-4, 1e-4]}, "loe_kalman.G: expected 3 numbers like [0.0001, 0.0001, 5e-06], got 2"),
+    ({"Q": float("nan")}, "loe_kalman.Q: must be finite (no NaN or inf), got nan"),
+    ({"Q": [1, 2]}, "loe_kalman.Q: expected a number > 0, got list [1, 2]"),
+    ({"k_threshold": "x"}, "loe_kalman.k_threshold: expected a number in (0, 1), got str 'x'"),
+    ({"p_fail_threshold": 2}, "loe_kalman.p_fail_threshold: must be in (0, 1), got 2.0"),
+    ({"initial_variance": -1}, "loe_kalman.initial_variance: must be > 0, got -1.0"),
+    ({"filter_wn": 0}, "loe_kalman.filter_wn: must be > 0, got 0.0"),
+    ({"takeoff_fraction": float("nan")}, "loe_kalman.takeoff_fraction: must be finite (no NaN or inf), got nan"),
+    ({"k_bounds": [1, 0]}, "k_bounds: must be (low, high) with low < high, got (1.0, 0.0)"),
+])
+def test_settings_that_would_silence_the_detector_are_refused_by_name(overrides, message):
+    with pytest.raises(ValueError, match=re.escape(message)):
+        LoeKalmanDetector(1 / 500, **overrides)
 
 
 @pytest.mark.parametrize("key, index", [("gyro", 1), ("accel", 2), ("rotor_speed", 3)])  # the elements it reads

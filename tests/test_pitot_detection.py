@@ -1,6 +1,7 @@
 """Pitot fault detection (001 Sec. 6.1, Table 2) on synthetic residual sequences, and the airspeed-switch policy."""
 import numpy as np
 import pytest
+from gymnasium import spaces
 
 from ftcgym.agents import make_policy
 from ftcgym.agents.airspeed_policies import AirspeedSwitchPolicy, SyntheticOnlyPolicy
@@ -146,9 +147,11 @@ def test_policies_are_registered():
     class Base:                 # QuadPlaneAutopilot-v0 as the catalogue sees it: a VSQP flown by airspeed
         params = VSQP
         controls = "airspeed"
+        agent_hz = 100.0
 
     class Env:
         unwrapped = Base()
+        observation_space = spaces.Dict({})
 
     assert isinstance(make_policy("airspeed-switch", Env()), AirspeedSwitchPolicy)
     assert isinstance(make_policy("synthetic-only", Env()), SyntheticOnlyPolicy)

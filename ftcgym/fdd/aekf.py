@@ -53,16 +53,17 @@ from __future__ import annotations
 
 import math
 import operator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
 from numba.core.errors import TypingError
 
+from ..models.checks import NON_NEGATIVE, POSITIVE, Range, number
 from ..models.constants import GRAVITY
 from ..models.geometry import euler_from_quat, rotation_from_euler, skew_matrix
 from ..models.quadrotor import YAW_SIGNS, QuadrotorParams, rotor_wrench_matrix
-from ..settings import updated
+from ..settings import accepts, updated
 from .base import ARRAY_TYPES, AlarmLatch, vehicle_params
 from .wrapper import DetectorWrapper
 
@@ -133,12 +134,17 @@ class QuadrotorModel:
 class AekfSettings:
     """The parameters of `AugmentedEkfDetector`; each `AugmentedEkfDetector(..., **overrides)` keyword updates one."""
 
-    model_error: float = 0.0           # the detector's c_T is (1 + model_error) times the nominal one
-    loe_walk: float = 0.05             # 1/sqrt(s), sigma of the LOE random walk w' (eq. 43)
-    window: float = 0.5                # s, time constant of the innovation accumulation window (eq. 42)
-    threshold: float = 3.0             # T_0 of eq. (42), standard deviations of the accumulated innovation
-    isolation_threshold: float = 0.1   # LOE estimate above which a rotor may be isolated
-    warmup: float = 1.0                # s after the first sample without alarms
+    # the detector's c_T is (1 + model_error) times the nominal one
+    model_error: float = field(default=0.0, metadata=accepts(Range(-1.0, open_low=True)))
+    # 1/sqrt(s), sigma of the LOE random walk w' (eq. 43)
+    loe_walk: float = field(default=0.05, metadata=accepts(POSITIVE))
+    # s, time constant of the innovation accumulation window (eq. 42)
+    window: float = field(default=0.5, metadata=accepts(POSITIVE))
+    # T_0 of eq. (42), standard deviations of the accumulated innovation
+    threshold: float = field(default=3.0, metadata=accepts(POSITIVE))
+    # LOE estimate above which a rotor may be isolated
+    isolation_threshold: float = field(default=0.1, metadata=accepts(Range(0.0, 1.0, open_low=True, open_high=True)))
+    warmup: float = field(default=1.0, metadata=accepts(NON_NEGATIVE))   # s after the first sample without alarms
     q_sigma: dict | None = None        # overrides of Q_SIGMA entries
     r_sigma: dict | None = None        # overrides of R_SIGMA entries
 
@@ -356,10 +362,14 @@ def _check_finite(values: list, keys, command: np.ndarray, time: float) -> None:
 
 
 def _override(defaults: dict, overrides: dict | None, name: str) -> dict:
+    """The noise levels `defaults` with `overrides` (a dict of some of their keys, each a number > 0)."""
+    if overrides is not None and not isinstance(overrides, dict):
+        raise ValueError(f"aekf.{name}: expected a dict of some of {sorted(defaults)}, got {overrides!r}")
     unknown = set(overrides or {}) - set(defaults)
     if unknown:
-        raise ValueError(f"{name}: unknown key(s) {sorted(unknown)}; accepted: {sorted(defaults)}")
-    return {**defaults, **(overrides or {})}
+        raise ValueError(f"aekf.{name}: unknown key(s) {sorted(unknown)}; accepted: {sorted(defaults)}")
+    return {**defaults, **{key: number(value, f"aekf.{name}.{key}", POSITIVE)
+                           for key, value in (overrides or {}).items()}}
 
 
 def _blocks(pos, vel, eta, omega, bias, loe, dist) -> np.ndarray:

@@ -84,17 +84,18 @@ from __future__ import annotations
 
 import math
 import operator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
 from numba.core.errors import TypingError
 from scipy import signal
 
+from ..models.checks import POSITIVE
 from ..models.constants import GRAVITY
 from ..models.geometry import euler_from_quat, rotation_matrix
 from ..models.quadrotor import QuadrotorParams, rotor_wrench_matrix
-from ..settings import updated
+from ..settings import accepts, updated
 from .base import ARRAY_TYPES, AlarmLatch, vehicle_params
 from .wrapper import DetectorWrapper
 
@@ -460,7 +461,8 @@ class IvChangeSettings:
     accel_noise: float = 0.004         # m/s^2, the filtered accelerometer's noise at the test's rate
     air_cutoff_hz: float = 2.0         # Hz, Butterworth low-pass of the wind test's channels
     period: float = 0.1                # s, the wind test's filter step
-    turbulence_levels: tuple = (0.0625, 0.25, 1.0)  # the wind test's turbulence intensities, x the above
+    # the wind test's turbulence intensities, x the above (any number of them)
+    turbulence_levels: tuple = field(default=(0.0625, 0.25, 1.0), metadata=accepts(POSITIVE, any_length=True))
     level_memory: float = 30.0         # s, memory of the likelihood that picks the level ...
     level_settle: float = 5.0          # s, ... counted from this long after the first sample
 

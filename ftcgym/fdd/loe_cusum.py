@@ -47,7 +47,15 @@ from ..models.constants import GRAVITY
 from ..models.quadrotor import QuadrotorParams
 from ..settings import updated
 from .base import AlarmLatch, biquad_constants, biquad_step, vehicle_params
-from .loe_kalman import NO_ALARM, NON_FINITE, TABLE_II, _sample, effectiveness_matrix, lowpass_coefficients
+from .loe_kalman import (
+    NO_ALARM,
+    NON_FINITE,
+    TABLE_II,
+    _sample,
+    effectiveness_matrix,
+    lowpass_coefficients,
+    scaled_G,
+)
 
 CUSUM_CEILING = 1e6  # the published statistics are clipped here (they are unbounded after a loss)
 
@@ -282,7 +290,8 @@ def loe_cusum_wrapper(env, G="vehicle", G_scale: float = 1.0, motor="vehicle", *
     if isinstance(motor, str) and motor == "vehicle":
         motor = {"motor_time_constant": params.motor_time_constant, "omega_min": params.omega_min,
                  "omega_max": params.omega_max}
-    return DetectorWrapper(env, LoeCusumDetector(dt, G=tuple(np.asarray(G) * G_scale), **{**(motor or {}), **kwargs}))
+    return DetectorWrapper(env, LoeCusumDetector(dt, G=scaled_G(G, G_scale, "loe_cusum"),
+                                                  **{**(motor or {}), **kwargs}))
 
 
 def _reject_non_finite(readings: dict, command) -> None:

@@ -20,7 +20,7 @@ scipy's erf (`_erf`), so every output keeps its bits.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import llvmlite.binding as llvm
 import numpy as np
@@ -29,9 +29,10 @@ from numba.extending import get_cython_function_address
 from scipy import signal
 from scipy.special import erf
 
+from ..models.checks import FRACTION, POSITIVE, Range, numbers
 from ..models.constants import GRAVITY
 from ..models.quadrotor import QuadrotorParams
-from ..settings import updated
+from ..settings import accepts, updated
 from . import kalman
 from .base import AlarmLatch, biquad_constants, biquad_step, vehicle_params
 
@@ -49,6 +50,8 @@ TABLE_II = {"G": (100e-6, 100e-6, 5e-6), "Q": 0.1, "R": 1.0, "k_threshold": 0.25
 #: reported delays). With Q dT the delays fall within 000's reported range on tuning flights; see
 #: docs/measurements.md, 'Tuning record: fdd/loe_kalman.py'.
 Q_PER_SAMPLE = TABLE_II["Q"] * TABLE_II["step_size"]
+#: a probability or an effectiveness threshold strictly between 0 and 1
+OPEN_FRACTION = Range(0.0, 1.0, open_low=True, open_high=True)
 VARIANCE_CEILING = 1e6  # published k_var is clipped here (the unobservable direction's variance grows without bound)
 
 #: The detector's state (`LoeKalmanDetector._state`): what `outputs` publishes (k_hat, k_var, p_fail), two flags
@@ -152,17 +155,20 @@ def _kalman_step(x, P, z, H, Q, r, k_low, k_high):  # pragma: no cover (compiled
 class LoeKalmanSettings:
     """The parameters of `LoeKalmanDetector`; each `LoeKalmanDetector(..., **overrides)` keyword updates one."""
 
-    G: tuple = TABLE_II["G"]            # (G_p, G_q, G_az) of eq. (9): 1/(kg m) for p_dot, q_dot; 1/kg for a_z
+    # (G_p, G_q, G_az) of eq. (9): 1/(kg m) for p_dot, q_dot; 1/kg for a_z
+    G: tuple = field(default=TABLE_II["G"], metadata=accepts(POSITIVE))
     effectiveness_matrix: tuple | None = None  # a (3, 4) B: [p_dot, q_dot, a_z] = B omega^2, replacing diag(G) S
-    Q: float = Q_PER_SAMPLE            # process noise per sample, times I (see Q_PER_SAMPLE)
-    R: float = TABLE_II["R"]           # measurement noise, times I (Table II)
-    k_threshold: float = TABLE_II["k_threshold"]            # eq. (15)
-    p_fail_threshold: float = TABLE_II["p_fail_threshold"]  # eq. (16)
-    k_bounds: tuple = (0.0, 1.5)       # the bound on the estimates k (Sec. IV-B)
-    filter_wn: float = 50.0            # rad/s, the low-pass's natural frequency (Sec. IV-A)
-    filter_zeta: float = 0.55          # its damping (Sec. IV-A)
-    takeoff_fraction: float = 0.5      # detection starts once the rotors carry this share of the weight (Sec. V-D)
-    initial_variance: float = 0.01     # P_0 = this times I
+    # process noise per sample, times I (see Q_PER_SAMPLE)
+    Q: float = field(default=Q_PER_SAMPLE, metadata=accepts(POSITIVE))
+    R: float = field(default=TABLE_II["R"], metadata=accepts(POSITIVE))    # measurement noise, times I (Table II)
+    k_threshold: float = field(default=TABLE_II["k_threshold"], metadata=accepts(OPEN_FRACTION))         # eq. (15)
+    p_fail_threshold: float = field(default=TABLE_II["p_fail_threshold"], metadata=accepts(OPEN_FRACTION))  # (16)
+    k_bounds: tuple = (0.0, 1.5)       # the bound on the estimates k (Sec. IV-B), low < high
+    filter_wn: float = field(default=50.0, metadata=accepts(POSITIVE))   # rad/s, the low-pass's (Sec. IV-A)
+    filter_zeta: float = field(default=0.55, metadata=accepts(POSITIVE))  # its damping (Sec. IV-A)
+    # detection starts once the rotors carry this share of the weight (Sec. V-D)
+    takeoff_fraction: float = field(default=0.5, metadata=accepts(FRACTION))
+    initial_variance: float = field(default=0.01, metadata=accepts(POSITIVE))   # P_0 = this times I
 
 
 def effectiveness_matrix(settings) -> np.ndarray:
@@ -196,6 +202,8 @@ class LoeKalmanDetector:
         if not (math.isfinite(s.R) and s.R > 0):                   # S = H P H^T + R must be positive definite
             raise ValueError(f"R: must be a finite number > 0, got {s.R!r}")
         k_low, k_high = s.k_bounds
+        if not k_low < k_high:
+            raise ValueError(f"k_bounds: must be (low, high) with low < high, got {s.k_bounds!r}")
         lowpass = biquad_constants(*lowpass_coefficients(s.filter_wn, s.filter_zeta, self.dt))
         self._constants = np.concatenate((self.B.ravel(), (s.Q * np.eye(4)).ravel(), lowpass, (
             self.dt, s.R, s.k_threshold, s.p_fail_threshold, k_low, k_high, s.takeoff_fraction * GRAVITY)))
@@ -328,7 +336,16 @@ def loe_kalman_wrapper(env, G="vehicle", G_scale: float = 1.0, **kwargs):
     dt = 1.0 / env.get_wrapper_attr("agent_hz")
     if isinstance(G, str) and G == "vehicle":
         G = params.effectiveness_G
-    return DetectorWrapper(env, LoeKalmanDetector(dt, G=tuple(np.asarray(G) * G_scale), **kwargs))
+    return DetectorWrapper(env, LoeKalmanDetector(dt, G=scaled_G(G, G_scale, "loe_kalman"), **kwargs))
+
+
+def scaled_G(G, G_scale, where: str) -> tuple:
+    """G times G_scale, both checked (three positive numbers; a positive factor or one per entry of G, as
+    `ftcgym sweep fig11` scales them; ValueError naming them)."""
+    scale = numbers(G_scale, f"{where}.G_scale", None, POSITIVE)
+    if scale.shape not in ((), (3,)):
+        raise ValueError(f"{where}.G_scale: expected a number > 0 or 3 of them, got {G_scale!r}")
+    return tuple((numbers(G, f"{where}.G", (3,), POSITIVE) * scale).tolist())
 
 
 def _reject_non_finite(readings: dict) -> None:

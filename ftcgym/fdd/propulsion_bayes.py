@@ -62,13 +62,14 @@ target; on a recorded log or another env the request is only published.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..models.checks import Range
 from ..models.pusher import TWO_PI, pusher_aero_torque
 from ..models.vsqp import VsqpParams
-from ..settings import updated
+from ..settings import accepts, updated
 from . import kalman
 from .base import AlarmLatch, model_with_error, vehicle_params
 from .wrapper import DetectorWrapper
@@ -223,7 +224,8 @@ class PropulsionBayesSettings:
     develop_window: float = 10.0               # s: a fault counts as developed when the KF means over this ...
     develop_ratio: float = 0.15                # ... moved less than this share of their distance from x* ...
     max_develop: float = 30.0                  # ... or after this many s
-    p_confident: float = 0.95                  # isolation posterior that stops stepping
+    # isolation posterior that stops stepping
+    p_confident: float = field(default=0.95, metadata=accepts(Range(0.0, 1.0, open_low=True, open_high=True)))
     max_cycles: int = 2                        # most isolation steps
     min_airspeed: float = 12.0                 # m/s: below it the detector idles (not wing-borne)
     min_current: float = 3.0                   # A: below it the detector idles (pusher not driven)
