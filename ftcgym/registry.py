@@ -59,9 +59,9 @@ class Registry:
         if name in installed:
             try:
                 return installed[name].load()
-            except (ImportError, AttributeError) as error:
+            except Exception as error:  # noqa: BLE001 - a plug-in's own failure, reported in one line
                 raise ValueError(f"{self.kind} {name!r}: the entry point {installed[name].value!r} of group "
-                                 f"{self.group!r} could not be loaded ({error})") from None
+                                 f"{self.group!r} could not be loaded ({type(error).__name__}: {error})") from error
         if ":" in name:
             return load_reference(name, self.kind)
         raise self.unknown(name)
@@ -87,6 +87,9 @@ def load_reference(reference: str, kind: str):
     except ImportError as error:
         raise ValueError(f"{kind}: {reference!r}: module {module_name!r} could not be imported ({error}); "
                          f"is it on PYTHONPATH or installed?") from None
+    except Exception as error:  # noqa: BLE001 - the module's own failure, reported in one line
+        raise ValueError(f"{kind}: {reference!r}: importing module {module_name!r} raised {type(error).__name__}: "
+                         f"{error} (python -c 'import {module_name}' shows where)") from error
     for part in attribute.split("."):
         if not hasattr(target, part):
             raise ValueError(f"{kind}: {reference!r}: module {module_name!r} has no attribute {attribute!r}")

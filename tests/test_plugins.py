@@ -127,3 +127,20 @@ def test_a_misspelt_scenario_names_the_built_in_it_is_closest_to():
     with pytest.raises(ValueError, match=r"scenario: unknown name 'quad-rotor-loss-hoverr' \(did you mean "
                                          r"'quad-rotor-loss-hover'\?\); .*accepted: \['quad-hover', 'quad-square', "):
         get_scenario("quad-rotor-loss-hoverr")
+
+
+@pytest.mark.parametrize("source, argument, message", [
+    ('raise RuntimeError("boom at import")\n', "--policy",
+     "argument --policy: policy: 'user_module:X': importing module 'user_module' raised RuntimeError: boom at import "
+     "(python -c 'import user_module' shows where)"),
+    ("def f(:\n", "--detector", "argument --detector: detector: 'user_module:X': importing module 'user_module' "
+                                "raised SyntaxError: invalid syntax"),
+    ('def scenario():\n    raise KeyError("nope")\n', "--scenario",
+     "argument --scenario: scenario 'user_module:scenario': its factory raised KeyError: 'nope'"),
+])
+def test_a_plug_in_that_fails_is_one_line_naming_it(tmp_path, source, argument, message):
+    (tmp_path / "user_module.py").write_text(source)
+    reference = "user_module:scenario" if argument == "--scenario" else "user_module:X"
+    run = subprocess.run([str(FTCGYM), "bench", argument, reference, "--out", str(tmp_path / "out")],
+                         env={**os.environ, "PYTHONPATH": str(tmp_path)}, capture_output=True, text=True)
+    assert run.returncode == 2 and message in run.stderr and "Traceback" not in run.stderr

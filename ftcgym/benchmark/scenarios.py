@@ -71,7 +71,10 @@ def get_scenario(name: str) -> Scenario:
     if isinstance(name, str) and name and ":" not in name and name not in PLUG_INS:
         raise PLUG_INS.unknown(name, known=SCENARIOS)
     found = PLUG_INS.load(name)
-    scenario = found() if callable(found) and not isinstance(found, Scenario) else found
+    try:
+        scenario = found() if callable(found) and not isinstance(found, Scenario) else found
+    except Exception as error:  # noqa: BLE001 - the user's factory's own failure, reported in one line
+        raise ValueError(f"scenario {name!r}: its factory raised {type(error).__name__}: {error}") from error
     if not isinstance(scenario, Scenario):
         raise TypeError(f"scenario {name!r}: got {type(scenario).__name__}, not an ftcgym.benchmark.Scenario")
     return replace(scenario, name=name)
