@@ -91,3 +91,19 @@ def test_overrides_that_widen_the_observation_space_belong_to_gym_make():
     with pytest.raises(ValueError, match=message):
         env.reset(seed=0, options={"vehicle_overrides": {"omega_max": 2000.0}})
     env.close()
+
+
+def test_a_refused_reset_leaves_the_episode_as_it_was():
+    env = gym.make("ftcgym/Quadrotor-v0", wind={"mean": [1.0, 0.0, 0.0], "turbulence": "light"})
+    env.reset(seed=3)
+    twin = gym.make("ftcgym/Quadrotor-v0", wind={"mean": [1.0, 0.0, 0.0], "turbulence": "light"})
+    twin.reset(seed=3)
+    with pytest.raises(ValueError, match=r"reset options: faults\[0\].target"):
+        env.reset(options={"wind": {"mean": [5.0, 0.0, 0.0]}, "faults": [{"kind": "loe", "target": 9}]})
+    action = np.full(4, 0.55, dtype=np.float32)
+    for _ in range(50):                     # the episode goes on in its own wind, as the twin's does
+        obs, *_ = env.step(action)
+        twin_obs, *_ = twin.step(action)
+    assert all(np.array_equal(obs[key], twin_obs[key]) for key in obs)
+    env.close()
+    twin.close()

@@ -142,16 +142,18 @@ class FlightEnv(gym.Env):
             raise ValueError(f"reset options: expected a dict with keys {list(self.RESET_OPTIONS)}, got {options!r}")
         options = dict(options or {})
         no_unknown(options, self.RESET_OPTIONS, "reset options key")
-        try:
+        try:   # all checked before any is installed: a refused reset leaves the env as it was
             params = (self._make_params(self.vehicle, options["vehicle_overrides"]) if "vehicle_overrides" in options
                       else self._configured_params)
-            self.wind = DrydenWind.from_config(options["wind"], self.dt) if "wind" in options else self._configured_wind
-            self.fault_specs = self._parse_faults(options["faults"]) if "faults" in options else self._configured_faults
-            self._check_faults(params, self.fault_specs)
+            wind = DrydenWind.from_config(options["wind"], self.dt) if "wind" in options else self._configured_wind
+            fault_specs = self._parse_faults(options["faults"]) if "faults" in options else self._configured_faults
+            self._check_faults(params, fault_specs)
         except ValueError as error:
             raise ValueError(f"reset options: {error}") from None
         if params is not self.params:
             self._check_space_bounds(params)
+        self.wind, self.fault_specs = wind, fault_specs
+        if params is not self.params:
             self.params = params
             self._build_vehicle()
             self._size_body()
