@@ -43,6 +43,14 @@ def connected_clients() -> int:
     (P, {"battery_voltage": 0}, "vehicle_overrides['battery_voltage']: must be > 0"),
     (P, {"hover_yaw_signs": [1, -1, 0.5, -1]}, "hover_yaw_signs and pusher_spin_direction must each be -1 or +1"),
     (P, {"transition_start_speed": 20.0}, "transition_start_speed must be below transition_end_speed"),
+    (Q, {"mass": 5e-324}, "vehicle_overrides['mass']: 5e-324 is more than 1000 times off the parameter set's "
+                          "magnitude; accepted magnitudes 0.000374 to 374"),
+    (Q, {"mass": 1e308}, "vehicle_overrides['mass']: 1e+308 is more than 1000 times off"),
+    (Q, {"thrust_coefficient": 1e308}, "vehicle_overrides['thrust_coefficient']: 1e+308 is more than 1000 times off"),
+    (Q, {"body_drag": [1e308, 0, 0]}, "vehicle_overrides['body_drag']: [1e+308, 0.0, 0.0] is more than 1000 times off"),
+    (Q, {"rotational_drag": [0.0, 0.0, 3.0]}, "accepted magnitudes 1e-07 to 2.75"),   # bebop2's 0: mueller2014's
+    (P, {"pusher_diameter": 1e150}, "vehicle_overrides['pusher_diameter']: 1e+150 is more than 1000 times off"),
+    (P, {"wing_span": 5e-324}, "vehicle_overrides['wing_span']: 5e-324 is more than 1000 times off"),
 ])
 def test_vehicle_overrides_out_of_range_fail_at_make(env_id, overrides, message):
     with pytest.raises(ValueError, match=re.escape(message)):
@@ -60,6 +68,8 @@ def test_vehicle_overrides_out_of_range_fail_at_reset_too():
     ({"kind": "sensor_bias", "target": "gyro", "magnitude": [1, 2]}, "faults[0].magnitude: expected 3 numbers"),
     ({"kind": "sensor_bias", "target": "gyro", "magnitude": "x"}, "faults[0].magnitude: expected a number"),
     ({"kind": "payload", "magnitude": -0.5}, "the payloads take the mass to -0.126 kg (vehicle 0.374 kg)"),
+    ({"kind": "payload", "magnitude": 1e308}, "the payloads take the mass to 1e+308 kg (vehicle 0.374 kg); accepted: "
+                                              "payloads that keep the mass above 0 and at most 1000 times"),
     ({"kind": "loe", "target": 0, "magnitude": 0.0}, "faults[0].magnitude: must be in (0, 1], got 0.0"),
     ({"kind": "rotor_loss", "target": 0, "magnitude": 0.5}, "rotor_loss is a total loss, so its magnitude is 1"),
     ({"kind": "loe", "target": [0, 0]}, "faults[0].target: [0, 0] is not accepted for loe"),

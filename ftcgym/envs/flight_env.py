@@ -15,6 +15,7 @@ from gymnasium import spaces
 from ..models.checks import POSITIVE, Range, no_unknown, number, real_array
 from ..models.compiled import without_dispatch
 from ..models.constants import GRAVITY
+from ..models.quadrotor import SCALE_LIMIT
 from ..models.tasks import make_task
 from ..models.wind import DrydenWind
 from .frames import RAW_EXAMPLE, body_state, step_state
@@ -121,7 +122,8 @@ class FlightEnv(gym.Env):
         return task
 
     def _check_faults(self, params, specs) -> None:
-        """The payloads (a drop is negative) must keep the mass above zero at every time. A fault that may begin
+        """The payloads (a drop is negative) must keep the mass above zero and within SCALE_LIMIT times the
+        vehicle's at every time. A fault that may begin
         at or after the episode's end is legal (a run cut short on purpose) but warned about: it would not act."""
         for index, spec in enumerate(specs):
             latest = max(spec.time) if isinstance(spec.time, tuple) else spec.time
@@ -129,10 +131,13 @@ class FlightEnv(gym.Env):
                 warnings.warn(f"faults[{index}].time: {spec.time!r} s is not before the episode's end "
                               f"(max_episode_seconds = {self.max_episode_seconds:g}); the fault may not act",
                               FaultAfterEndWarning, stacklevel=4)
-        lightest = params.mass + sum(min(s.magnitude, 0.0) for s in specs if s.kind == "payload")
-        if lightest <= 0.0:
-            raise ValueError(f"faults: the payloads take the mass to {lightest:g} kg (vehicle {params.mass:g} kg); "
-                             f"accepted: payload drops that keep the mass > 0")
+        payloads = [s.magnitude for s in specs if s.kind == "payload"]
+        lightest = params.mass + sum(min(m, 0.0) for m in payloads)
+        heaviest = params.mass + sum(max(m, 0.0) for m in payloads)
+        if lightest <= 0.0 or heaviest > SCALE_LIMIT * params.mass:
+            raise ValueError(f"faults: the payloads take the mass to {lightest if lightest <= 0.0 else heaviest:g} kg "
+                             f"(vehicle {params.mass:g} kg); accepted: payloads that keep the mass above 0 and at most "
+                             f"{SCALE_LIMIT:g} times the vehicle's")
 
     def _begin_episode(self, seed, options) -> None:
         """`gym.Env.reset`'s seeding, then this episode's parameters, wind and faults (class docstring)."""

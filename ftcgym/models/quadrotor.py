@@ -165,10 +165,35 @@ def make_params(vehicle: str, overrides: dict | None = None) -> QuadrotorParams:
     return named_params(VEHICLES, vehicle, overrides, QUADROTOR_RANGES, QUADROTOR_RELATIONS)
 
 
+#: how far an override may scale a parameter of the named set, either way: the sets are small UAVs, and a value
+#: outside is a unit slip or another vehicle whose physics would leave the float range in a step
+SCALE_LIMIT = 1e3
+
+
+def _scale(catalogue: dict, params, key: str) -> np.ndarray:
+    """The magnitude an override of `key` is measured against, per element: the named set's value, or where that
+    is 0 the largest of the catalogue's sets (0 where all are: no limit)."""
+    named = np.abs(np.asarray(getattr(params, key), dtype=float))
+    largest = np.max([np.abs(np.asarray(getattr(p, key), dtype=float)) for p in catalogue.values()], axis=0)
+    return np.where(named > 0, named, largest)
+
+
+def _check_scale(values: np.ndarray, scale: np.ndarray, where: str) -> None:
+    """ValueError unless every non-zero value lies within SCALE_LIMIT of its scale, either way (0 stays 0)."""
+    magnitude = np.abs(values)
+    bad = (scale > 0) & ((magnitude > SCALE_LIMIT * scale) | ((magnitude > 0) & (magnitude < scale / SCALE_LIMIT)))
+    if np.any(bad):
+        low, high = (np.min(scale[scale > 0]) / SCALE_LIMIT, np.max(scale) * SCALE_LIMIT)
+        raise ValueError(f"{where}: {values.tolist() if values.ndim else float(values)!r} is more than "
+                         f"{SCALE_LIMIT:g} times off the parameter set's magnitude; accepted magnitudes "
+                         f"{low:.3g} to {high:.3g} (or 0 where the field allows it)")
+
+
 def named_params(catalogue: dict, vehicle: str, overrides: dict | None, ranges: dict, relations=()):
     """`catalogue[vehicle]` (a frozen dataclass) with `overrides` applied. Each override must be real numbers
-    of its field's shape inside `ranges[field]`, and the result must satisfy every `(holds, rule)` of
-    `relations`; otherwise ValueError names the field, the value and what is accepted."""
+    of its field's shape inside `ranges[field]` and within SCALE_LIMIT of the set's own magnitude (`_scale`), and
+    the result must satisfy every `(holds, rule)` of `relations`; otherwise ValueError names the field, the value
+    and what is accepted."""
     if not isinstance(vehicle, str) or vehicle not in catalogue:
         raise ValueError(f"vehicle: unknown parameter set {vehicle!r}; accepted: {sorted(catalogue)}")
     params = catalogue[vehicle]
@@ -179,7 +204,9 @@ def named_params(catalogue: dict, vehicle: str, overrides: dict | None, ranges: 
     no_unknown(overrides, ranges, "vehicle_overrides field")
     clean = {}
     for key, value in overrides.items():
-        arr = numbers(value, f"vehicle_overrides[{key!r}]", np.shape(getattr(params, key)), ranges[key])
+        where = f"vehicle_overrides[{key!r}]"
+        arr = numbers(value, where, np.shape(getattr(params, key)), ranges[key])
+        _check_scale(arr, _scale(catalogue, params, key), where)
         clean[key] = tuple(arr.tolist()) if arr.ndim else float(arr)
     params = dataclasses.replace(params, **clean)
     for holds, rule in relations:
