@@ -2,6 +2,7 @@
 (model, VecNormalize statistics, checkpoints, benchmark evaluations, manifest), `LearnedPolicy` and
 `ftcgym evaluate`. Kept short: a few thousand steps in all."""
 import json
+import re
 from pathlib import Path
 
 import gymnasium as gym
@@ -297,3 +298,72 @@ def test_train_with_two_subprocess_envs(tmp_path):
     assert manifest["n_envs"] == 2 and manifest["steps"] >= 512
     assert (out / "model.zip").is_file() and (out / "vecnormalize.pkl").is_file()
     assert not (out / "evaluations.jsonl").exists()
+
+
+def _broken(tmp_path, change) -> str:
+    """The shipped rotor-loss-recovery config with `change(body)` applied, written to a file."""
+    document = yaml.safe_load((Path(ftcgym.__file__).parent / "training/configs/rotor-loss-recovery.yaml").read_text())
+    change(document["rotor-loss-recovery"])
+    path = tmp_path / "broken.yaml"
+    path.write_text(yaml.safe_dump(document))
+    return str(path)
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda b: b.pop("env_id"), "env_id is missing"),
+    (lambda b: b.__setitem__("env_id", "ftcgym/NoSuch-v0"), "env_id: Environment `NoSuch` doesn't exist"),
+    (lambda b: b.__setitem__("env_id", 5), "env_id: expected text, got 5"),
+    (lambda b: b.__setitem__("PPO", 3), "PPO: expected a mapping, got 3"),
+    (lambda b: b.__setitem__("env_kwargs", [1, 2]), "env_kwargs: expected a mapping, got [1, 2]"),
+    (lambda b: b.__setitem__("wrappers", "loe_kalman"), "wrappers: expected a list, got 'loe_kalman'"),
+    (lambda b: b.__setitem__("eval", 5), "eval: expected a mapping, got 5"),
+    (lambda b: b.__setitem__("checkpoint_frequency", 3),
+     "key: unknown ['checkpoint_frequency'] (did you mean 'checkpoint_freq'?)"),
+    (lambda b: b.__setitem__("checkpoint_freq", -1), "checkpoint_freq: must be >= 1, got -1"),
+    (lambda b: b["PPO"].__setitem__("n_timesteps", "abc"), "PPO.n_timesteps: expected a whole number >= 0, got 'abc'"),
+    (lambda b: b["PPO"].pop("n_timesteps"), "PPO.n_timesteps is missing"),
+    (lambda b: b["PPO"].__setitem__("policy_kwargs", [1]), "PPO.policy_kwargs: expected a mapping"),
+    (lambda b: b["PPO"].__setitem__("normalize", {"norm_obs": "maybe"}),
+     "PPO.normalize.norm_obs: expected true or false, got 'maybe'"),
+    (lambda b: b["quick"].__setitem__("PP0", {}), "quick: key: unknown ['PP0'] (did you mean 'PPO'?)"),
+])
+def test_a_broken_config_is_refused_naming_the_key(tmp_path, change, message):
+    with pytest.raises(ValueError, match=re.escape(message)):
+        load_config(_broken(tmp_path, change))
+
+
+def test_a_misspelt_algorithm_keyword_is_refused_before_any_env_is_built(tmp_path):
+    pytest.importorskip("stable_baselines3")
+    from ftcgym.training.train import check_hyperparams
+    config = load_config(_broken(tmp_path, lambda b: b["PPO"].__setitem__("learning_rte", 1e-3)))
+    with pytest.raises(ValueError, match=r"PPO keyword: unknown \['learning_rte'\] \(did you mean 'learning_rate'\?\)"):
+        check_hyperparams(config)
+    check_hyperparams(load_config("rotor-loss-recovery"))          # the shipped config passes
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"vehical": "bebop2"}, "gym.make keyword: unknown ['vehical'] (did you mean 'vehicle'?)"),
+    ({"vehicle": None}, "vehicle: expected a parameter set or a list of them"),
+    ({"horizon_seconds": "5"}, "horizon_seconds: expected a number > 0, got str '5'"),
+    ({"onset": "3"}, "onset: expected a number or [lo, hi] with 0 <= lo <= hi, got '3'"),
+    ({"failed_rotor": True}, "failed_rotor: expected 'random', a rotor index 0-3 or a list of them, got True"),
+    ({"expert": "no"}, "expert: expected true or false, got 'no'"),
+    ({"action_repeat": 2.5}, "action_repeat: expected a whole number >= 1, got 2.5"),
+    ({"detector_kwargs": [1]}, "detector_kwargs: expected a dict of loe_kalman settings, got [1]"),
+    ({"detector_kwargs": {"Q": float("nan")}}, "loe_kalman.Q: must be finite"),
+    ({"wind": {"mean": [90, 0, 0]}}, "wind mean: its speed must be <= 50 m/s"),
+])
+def test_the_rotor_loss_task_checks_its_keywords_at_make(kwargs, message):
+    with pytest.raises(ValueError, match=re.escape(message)):
+        gym.make("ftcgym/RotorLossRecovery-v0", **kwargs)
+
+
+def test_the_rotor_loss_task_refuses_options_and_odd_actions():
+    env = gym.make("ftcgym/RotorLossRecovery-v0", **FAST_TASK)
+    with pytest.raises(ValueError, match="reset options: RotorLossRecovery-v0 draws each episode"):
+        env.reset(options={"faults": "garbage"})
+    env.reset(seed=0)
+    for action in (["0.5"] * 4, [True] * 4, 0.5):
+        with pytest.raises(ValueError, match="action: "):
+            env.step(action)
+    env.close()

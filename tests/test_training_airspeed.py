@@ -1,6 +1,7 @@
 """Task airspeed-source: the AirspeedSource-v0 env, a short `ftcgym train` run that loads and acts
 deterministically as `LearnedAirspeedPolicy`, and the shipped `learned-airspeed` policy."""
 import json
+import re
 from pathlib import Path
 
 import gymnasium as gym
@@ -202,3 +203,14 @@ def test_shipped_learned_airspeed_loads_and_is_deterministic():
               "pitot_alarm": True, "pitot_alarm_time": 44.0, "time": 46.0, "innovation_alarms": {}}
     assert to_weight(first.predict(airspeed_features(cruise, status, 1.0))) > 0.9
     env.close()
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"fault_mx": {}}, "gym.make keyword: unknown ['fault_mx'] (did you mean 'fault_mix'?)"),
+    ({"horizon_seconds": "5"}, "horizon_seconds: expected a number > 0, got str '5'"),
+    ({"turbulence": "storm"}, "wind turbulence: unknown preset 'storm'"),
+    ({"detector_kwargs": {"wind_boost": float("nan")}}, "airdata_ekf.wind_boost: must be finite"),
+])
+def test_the_airspeed_task_checks_its_keywords_at_make(kwargs, message):
+    with pytest.raises(ValueError, match=re.escape(message)):
+        gym.make("ftcgym/AirspeedSource-v0", **kwargs)

@@ -8,6 +8,8 @@ at `gym.make` or `reset`, never later in the physics. The ranges of the paramete
 from __future__ import annotations
 
 import difflib
+import functools
+import inspect
 import math
 from dataclasses import dataclass
 
@@ -50,11 +52,31 @@ def no_unknown(given, accepted, what: str) -> None:
         raise ValueError(f"{what}: unknown {unknown}{hint}; accepted: {sorted(accepted, key=str)}")
 
 
+def keywords_checked(init):
+    """An env's `__init__` whose misspelt keyword is a ValueError naming the closest accepted one (as
+    `gym.make keyword: unknown [...]`), not Python's TypeError."""
+    accepted = [name for name in inspect.signature(init).parameters if name != "self"]
+
+    @functools.wraps(init)
+    def checked(self, **kwargs):
+        no_unknown(kwargs, accepted, "gym.make keyword")
+        init(self, **kwargs)
+    return checked
+
+
 def number(value, field: str, accepted: Range = FINITE) -> float:
     """`value` as a float: a real number (not a bool, string or complex), finite and in `accepted`."""
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise ValueError(f"{field}: expected a number {accepted}, got {type(value).__name__} {value!r}")
     return float(numbers(value, field, (), accepted))
+
+
+def whole_number(value, field: str, low: int = 1) -> int:
+    """`value` as an int >= `low`: a whole number (an int, or a float without a fraction), not a bool."""
+    value_ = number(value, field, Range(low))
+    if value_ != int(value_):
+        raise ValueError(f"{field}: expected a whole number >= {low}, got {value!r}")
+    return int(value_)
 
 
 def numbers(value, field: str, shape: tuple | None = None, accepted: Range = FINITE) -> np.ndarray:

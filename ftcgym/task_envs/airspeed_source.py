@@ -39,7 +39,8 @@ from ftcgym.agents.quadplane_autopilot import PHASES
 from ftcgym.criteria import AIRSPEED_TOLERANCE
 from ftcgym.envs.action_space import ActionBox
 from ftcgym.fdd import wrap_with_detector
-from ftcgym.models.wind import random_mean_wind
+from ftcgym.models.checks import POSITIVE, keywords_checked, number, real_array, whole_number
+from ftcgym.models.wind import DrydenWind, random_mean_wind
 from ftcgym.task_envs.rotor_loss_recovery import interval
 
 ENV_ID = "ftcgym/AirspeedSource-v0"
@@ -116,6 +117,7 @@ class AirspeedSourceEnv(gym.Env):
 
     metadata = {"render_modes": []}
 
+    @keywords_checked
     def __init__(self, fault_mix=None, incipient_rate=(1.0, 4.0), onset=(30.0, 75.0), horizon_seconds: float = 20.0,
                  wind_speed=(0.0, 6.0), turbulence="light", action_repeat: int = 10, task="mission",
                  max_episode_seconds: float = 240.0, detector_kwargs: dict | None = None,
@@ -133,22 +135,25 @@ class AirspeedSourceEnv(gym.Env):
         self.incipient_rate = interval(incipient_rate, "incipient_rate", positive=True)
         self.onset = interval(onset, "onset")
         self.wind_speed = interval(wind_speed, "wind_speed")
-        if not (math.isfinite(horizon_seconds) and horizon_seconds > 0):
-            raise ValueError(f"horizon_seconds: must be > 0, got {horizon_seconds!r}")
-        if int(action_repeat) != action_repeat or action_repeat < 1:
-            raise ValueError(f"action_repeat: must be an integer >= 1, got {action_repeat!r}")
-        if not (math.isfinite(max_episode_seconds) and max_episode_seconds > 0):
-            raise ValueError(f"max_episode_seconds: must be > 0, got {max_episode_seconds!r}")
-        self.horizon_seconds, self.action_repeat = float(horizon_seconds), int(action_repeat)
+        self.horizon_seconds = number(horizon_seconds, "horizon_seconds", POSITIVE)
+        self.action_repeat = whole_number(action_repeat, "action_repeat")
+        self.max_episode_seconds = number(max_episode_seconds, "max_episode_seconds", POSITIVE)
         self.turbulence, self.task, self.sensors = turbulence, task, sensors
-        self.max_episode_seconds = float(max_episode_seconds)
+        if detector_kwargs is not None and not isinstance(detector_kwargs, dict):
+            raise ValueError(f"detector_kwargs: expected a dict of {DETECTOR} settings, got {detector_kwargs!r}")
         self.detector_kwargs = dict(detector_kwargs or {})
         self.observation_space = spaces.Box(-FEATURE_BOUND, FEATURE_BOUND, (N_FEATURES,), np.float32)
         self.action_space = ActionBox(-1.0, 1.0, (1,), np.float32)
         self.env = None
+        # built now, so that a bad task, sensor, turbulence or detector setting fails at make
+        DrydenWind.from_config({"turbulence": turbulence}, 0.002)
+        self._simulator()
 
     # ------------------------------------------------------------------------------------ episodes
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        if options:
+            raise ValueError(f"reset options: AirspeedSource-v0 draws each episode from its gym.make keywords and "
+                             f"takes none, got {options!r}")
         super().reset(seed=seed)
         for _ in range(MAX_RESETS):
             if self._fly_to_armed():
@@ -156,8 +161,8 @@ class AirspeedSourceEnv(gym.Env):
         raise RuntimeError(f"AirspeedSource: the detector never armed in {MAX_RESETS} flights")
 
     def step(self, action):
-        action = np.asarray(action, dtype=np.float64)
-        if action.size != 1 or not np.all(np.isfinite(action)):
+        action = real_array(action, "action", "one finite number in [-1, 1]")
+        if action.shape not in ((), (1,)) or not np.all(np.isfinite(action)):
             raise ValueError(f"action: must be one finite number, got {action!r}")
         self._weight = to_weight(action)
         reward, info, terminated, truncated, n = 0.0, self._info, False, False, 0

@@ -46,10 +46,12 @@ from gymnasium import spaces
 from ftcgym.agents import SpinRecoveryController, make_policy, policy_view
 from ftcgym.envs.action_space import ActionBox
 from ftcgym.fdd import wrap_with_detector
+from ftcgym.models.checks import POSITIVE, keywords_checked, number, real_array, whole_number
 from ftcgym.models.constants import GRAVITY
 from ftcgym.models.geometry import rotation_matrix
+from ftcgym.models.quadrotor import VEHICLES
 from ftcgym.models.tasks import make_task
-from ftcgym.models.wind import random_mean_wind
+from ftcgym.models.wind import DrydenWind, random_mean_wind
 
 DETECTOR = "loe_kalman"
 N_FEATURES = 41
@@ -162,32 +164,49 @@ class RotorLossRecoveryEnv(gym.Env):
 
     metadata = {"render_modes": []}
 
+    @keywords_checked
     def __init__(self, vehicle="bebop2", wind=None, onset=(2.0, 5.0), failed_rotor="random",
                  horizon_seconds: float = 5.0, action_repeat: int = 2, task="hover", agent_hz: float = 500.0,
                  detector_kwargs: dict | None = None, sensors: dict | None = None, expert: bool = False):
-        self.vehicles = [vehicle] if isinstance(vehicle, str) else list(vehicle)
+        self.vehicles = [vehicle] if isinstance(vehicle, str) else list(vehicle) if isinstance(vehicle, list) else []
+        if not self.vehicles or not all(isinstance(v, str) and v in VEHICLES for v in self.vehicles):
+            raise ValueError(f"vehicle: expected a parameter set or a list of them, of {sorted(VEHICLES)}; "
+                             f"got {vehicle!r}")
         self.winds = wind if isinstance(wind, list) else [wind]
         self.onsets = _onsets(onset)
         self.onset = (min(lo for lo, _ in self.onsets), max(hi for _, hi in self.onsets))   # their span
         self.failed_rotors = _rotors(failed_rotor)
-        if not (horizon_seconds > 0):
-            raise ValueError(f"horizon_seconds: must be > 0, got {horizon_seconds!r}")
-        if int(action_repeat) != action_repeat or action_repeat < 1:
-            raise ValueError(f"action_repeat: must be an integer >= 1, got {action_repeat!r}")
-        self.horizon_seconds, self.action_repeat = float(horizon_seconds), int(action_repeat)
+        self.horizon_seconds = number(horizon_seconds, "horizon_seconds", POSITIVE)
+        self.action_repeat = whole_number(action_repeat, "action_repeat")
         self.tasks = _tasks(task)
-        self.agent_hz, self.sensors = float(agent_hz), sensors
+        self.agent_hz, self.sensors = number(agent_hz, "agent_hz", POSITIVE), sensors
+        if detector_kwargs is not None and not isinstance(detector_kwargs, dict):
+            raise ValueError(f"detector_kwargs: expected a dict of {DETECTOR} settings, got {detector_kwargs!r}")
         self.detector_kwargs = dict(detector_kwargs or {})
-        self.expert = bool(expert)
+        if not isinstance(expert, bool):
+            raise ValueError(f"expert: expected true or false, got {expert!r}")
+        self.expert = expert
         self._guides: dict[str, SpinRecoveryController] = {}   # ftc-spin's controller per vehicle (guidance)
         self._guide, self._expert_action = None, None
         self.observation_space = spaces.Box(-FEATURE_BOUND, FEATURE_BOUND, (N_FEATURES,), np.float32)
         self.action_space = ActionBox(-1.0, 1.0, (4,), np.float32)
-        self._envs: dict[tuple, gym.Env] = {}   # one simulator per (vehicle, task), built on first use
+        self._envs: dict[tuple, gym.Env] = {}   # one simulator per (vehicle, task)
         self.env = None
+        try:                   # all built now: a bad wind, sensor, rate or detector setting fails at make
+            for vehicle in self.vehicles:
+                for task in range(len(self.tasks)):
+                    self._simulator(vehicle, task)
+            for spec in self.winds:
+                DrydenWind.from_config(_draw_wind(spec, np.random.default_rng(0)), 1.0 / self.agent_hz)
+        except ValueError:
+            self.close()
+            raise
 
     # ------------------------------------------------------------------------------------ episodes
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        if options:
+            raise ValueError(f"reset options: RotorLossRecovery-v0 draws each episode from its gym.make keywords "
+                             f"and takes none, got {options!r}")
         super().reset(seed=seed)
         for _ in range(MAX_RESETS):
             if self._fly_to_alarm():
@@ -195,7 +214,7 @@ class RotorLossRecoveryEnv(gym.Env):
         raise RuntimeError(f"RotorLossRecovery: no alarm in {MAX_RESETS} flights; check the detector settings")
 
     def step(self, action):
-        action = np.asarray(action, dtype=np.float64)
+        action = real_array(action, "action", "4 finite numbers in [-1, 1]")
         if action.shape != (4,) or not np.all(np.isfinite(action)):
             raise ValueError(f"action: must be 4 finite numbers, got {action!r}")
         command = to_motor_command(action)[self._order]
@@ -286,10 +305,11 @@ def _draw_wind(spec, rng) -> dict | None:
 def interval(value, name: str, positive: bool = False) -> tuple[float, float]:
     """[lo, hi] (or one number) with 0 <= lo <= hi (0 < lo if `positive`); ValueError naming the field."""
     try:
-        low, high = (value, value) if np.isscalar(value) else (float(value[0]), float(value[1]))
-        low, high = float(low), float(high)
-        ok = len(np.atleast_1d(value)) in (1, 2) and math.isfinite(low) and math.isfinite(high)
-    except (TypeError, ValueError, IndexError):
+        bounds = real_array(value, name, "a number or [lo, hi]").ravel()
+        low, high = float(bounds[0]), float(bounds[-1])
+        ok = (np.ndim(value) == 0 or (np.ndim(value) == 1 and len(bounds) == 2)) and math.isfinite(low) \
+            and math.isfinite(high)
+    except (ValueError, IndexError):
         ok = False
     if not ok or not (0 <= low <= high) or (positive and low <= 0):
         bound = "0 < lo <= hi" if positive else "0 <= lo <= hi"
@@ -316,7 +336,8 @@ def _tasks(value) -> list:
 
 
 def _rotors(value) -> list[int]:
-    rotors = list(range(4)) if value == "random" else ([value] if np.isscalar(value) else list(value))
-    if not rotors or any(int(r) != r or not 0 <= r < 4 for r in rotors):
+    rotors = list(range(4)) if value == "random" else [value] if not isinstance(value, (list, tuple)) else list(value)
+    if not rotors or not all(isinstance(r, (int, np.integer)) and not isinstance(r, bool) and 0 <= r < 4
+                             for r in rotors):
         raise ValueError(f"failed_rotor: expected 'random', a rotor index 0-3 or a list of them, got {value!r}")
     return [int(r) for r in rotors]

@@ -33,7 +33,10 @@ import copy
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+import gymnasium as gym
+
 from ftcgym.benchmark.sweep import read_yaml
+from ftcgym.models.checks import no_unknown
 
 CONFIG_DIR = Path(__file__).with_name("configs")
 ALGOS = ("PPO", "SAC")
@@ -105,6 +108,65 @@ def merge(base: dict, overrides: dict) -> dict:
     return merged
 
 
+#: the keys of a task's body and what each must be (`_check_body`)
+BODY_KEYS = {"env_id": str, "env_kwargs": dict, "wrappers": list, "default_algo": str, "checkpoint_freq": int,
+             "torch_threads": int, "vec_env": str, "eval": dict, "pretrain": dict, "seed": int,
+             **{algo: dict for algo in ALGOS}, "quick": dict}
+_KINDS = {str: "text", dict: "a mapping", list: "a list", int: "a whole number"}
+
+
+def _check_body(body: dict, where: str, overrides: bool = False) -> None:
+    """ValueError naming the first key of a task's body (or of its `quick` overrides) that is unknown or of the
+    wrong kind (a `None` value stands for the key's default), the first algorithm section key of the wrong kind,
+    or a missing env_id."""
+    no_unknown(body, BODY_KEYS, f"{where}: key")
+    if "env_id" not in body and not overrides:
+        raise ValueError(f"{where}: env_id is missing (the registered id to train on, e.g. "
+                         f"ftcgym/RotorLossRecovery-v0)")
+    for key, value in body.items():
+        kind = BODY_KEYS[key]
+        wrong = not isinstance(value, kind) or (kind is int and isinstance(value, bool))
+        if value is not None and wrong:
+            raise ValueError(f"{where}: {key}: expected {_KINDS[kind]}, got {value!r}")
+    if not all(isinstance(name, str) for name in body.get("wrappers") or []):
+        raise ValueError(f"{where}: wrappers: expected a list of detector names, got {body['wrappers']!r}")
+    for key in ("checkpoint_freq", "torch_threads"):
+        if body.get(key) is not None and body[key] < 1:
+            raise ValueError(f"{where}: {key}: must be >= 1, got {body[key]!r}")
+    for algo in ALGOS:
+        for key, value in (body.get(algo) or {}).items():
+            _check_section_value(f"{where}: {algo}.{key}", key, value)
+    if body.get("quick") is not None:
+        _check_body(body["quick"], f"{where}: quick", overrides=True)
+
+
+def _check_env_id(env_id: str, where: str) -> None:
+    """ValueError unless `env_id` is a registered Gymnasium id (ftcgym's are registered by importing it)."""
+    import ftcgym  # noqa: F401  (registers the ftcgym/ ids)
+    try:
+        gym.spec(env_id)
+    except gym.error.Error as error:
+        raise ValueError(f"{where}: env_id: {error}") from None
+
+
+def _check_section_value(where: str, key: str, value) -> None:
+    """The section keys ftcgym reads itself (SECTION_KEYS) must be of their kind; the rest go to SB3."""
+    if key in ("n_envs", "n_timesteps"):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or value != value or value < 0 or \
+                value != int(value):
+            raise ValueError(f"{where}: expected a whole number >= 0, got {value!r}")
+    elif key == "policy" and not isinstance(value, str):
+        raise ValueError(f"{where}: expected a policy name such as MlpPolicy, got {value!r}")
+    elif key == "policy_kwargs" and not isinstance(value, dict):
+        raise ValueError(f"{where}: expected a mapping of policy keywords, got {value!r}")
+    elif key == "normalize" and not isinstance(value, (bool, dict)):
+        raise ValueError(f"{where}: expected true, false or a mapping of VecNormalize keywords, got {value!r}")
+    elif key == "normalize" and isinstance(value, dict):
+        for flag in ("norm_obs", "norm_reward"):
+            if flag in value and not isinstance(value[flag], bool):
+                raise ValueError(f"{where}.{flag}: expected true or false, got {value[flag]!r}")
+
+
 def load_config(name_or_path: str, algo: str | None = None, n_envs: int | None = None,
                 total_steps: int | None = None, seed: int | None = None, pretrain_iterations: int | None = None,
                 quick: bool = False) -> TrainConfig:
@@ -117,6 +179,8 @@ def load_config(name_or_path: str, algo: str | None = None, n_envs: int | None =
     (task, body), = document.items()
     if not isinstance(body, dict):
         raise ValueError(f"config {path}: the task {task!r} must map keys to settings")
+    _check_body(body, f"config {path}")
+    _check_env_id(body["env_id"], f"config {path}")
     body = copy.deepcopy(body)
     overrides = body.pop("quick", None)
     if quick:
@@ -126,8 +190,10 @@ def load_config(name_or_path: str, algo: str | None = None, n_envs: int | None =
     algo = (algo or body.get("default_algo") or "PPO").upper()
     if algo not in ALGOS:
         raise ValueError(f"algo: {algo!r}; accepted: {list(ALGOS)}")
-    if algo not in body:
-        raise ValueError(f"config {path}: no {algo} section; sections: {[a for a in ALGOS if a in body]}")
+    if not isinstance(body.get(algo), dict):
+        raise ValueError(f"config {path}: no {algo} section; sections: {[a for a in ALGOS if body.get(a)]}")
+    if "n_timesteps" not in body[algo] and total_steps is None:
+        raise ValueError(f"config {path}: {algo}.n_timesteps is missing (the env steps to train for)")
     section = dict(body[algo])
     normalize = section.pop("normalize", True)
     normalize = {"norm_obs": True, "norm_reward": True} if normalize is True else (normalize or None)

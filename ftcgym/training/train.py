@@ -25,6 +25,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import importlib.util
+import inspect
 import json
 import platform
 import signal
@@ -36,11 +37,24 @@ from pathlib import Path
 import gymnasium as gym
 
 from ftcgym.benchmark.outputs import OutputFolder
+from ftcgym.models.checks import no_unknown
 from ftcgym.training.config import ACTIVATIONS, TrainConfig, dagger_plan, rl_steps, runs_pretraining
 from ftcgym.training.policy import MANIFEST_FILE, MODEL_FILE, NORMALIZER_FILE
 
 #: what a run writes in OUT as it trains (the final files are staged and published at the end)
 IN_PLACE = ("checkpoints", "pretrained", "best", "evaluations.jsonl", "logs", "tb")
+
+
+#: the constructor keywords `_train` sets itself (the config's policy, the vector env, the seed, ...)
+SET_BY_TRAIN = {"self", "policy", "env", "seed", "policy_kwargs", "device", "verbose"}
+
+
+def check_hyperparams(config: TrainConfig) -> None:
+    """The algorithm section's other keys must be keywords of the SB3 algorithm's constructor (a misspelt one is
+    a ValueError with the closest name), before any env is built."""
+    accepted = {name for name in inspect.signature(algorithm_class(config.algo).__init__).parameters
+                if not name.startswith("_")} - SET_BY_TRAIN
+    no_unknown(config.hyperparams, accepted, f"config {config.source}: {config.algo} keyword")
 
 
 def algorithm_class(name: str):
@@ -108,6 +122,7 @@ def train(config: TrainConfig, out: str | Path, progress: bool = True, command: 
     the folder as it was."""
     if (config.pretrain or {}).get("continue_from_init") and init_from is None:
         raise ValueError("pretrain.continue_from_init: DAgger continues from a saved model; give one (--init-from)")
+    check_hyperparams(config)
     with OutputFolder(out) as folder:
         return _train(config, folder, progress, command, verbose, init_from)
 
@@ -129,9 +144,13 @@ def _train(config: TrainConfig, folder: OutputFolder, progress: bool, command: s
         tensorboard = importlib.util.find_spec("tensorboard") is not None
         if not tensorboard and (progress or verbose):
             print("ftcgym train: tensorboard is not installed, so no TensorBoard logs (pip install tensorboard)")
-        model = algorithm_class(config.algo)(
-            config.policy, venv, seed=config.seed, policy_kwargs=policy_kwargs(config) or None, device="cpu",
-            verbose=verbose, **config.hyperparams)
+        try:
+            model = algorithm_class(config.algo)(
+                config.policy, venv, seed=config.seed, policy_kwargs=policy_kwargs(config) or None, device="cpu",
+                verbose=verbose, **config.hyperparams)
+        except (TypeError, ValueError, AssertionError) as error:   # what SB3 and torch say of a bad setting
+            raise ValueError(f"config {config.source}: the {config.algo} section (or its policy_kwargs) does not "
+                             f"build a model: {type(error).__name__}: {error}") from error
     except BaseException:
         close_quietly(venv)
         raise
