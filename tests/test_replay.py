@@ -530,7 +530,10 @@ def test_cli_table_and_errors(recording, capsys):
     missing = capsys.readouterr()
     assert missing.out == "" and "no_such_log.ulg" in missing.err
     assert main(["replay", str(path), "--detector", "nope"]) == 2
-    assert "cannot replay a log; replay sets up: loe_kalman" in capsys.readouterr().err
+    assert "detector: unknown name 'nope'; replay sets up: loe_kalman, aekf" in capsys.readouterr().err
+    assert main(["replay", str(path), "--detector", "loe_kalmann"]) == 2
+    assert ("detector: unknown name 'loe_kalmann' (did you mean 'loe_kalman'?); replay sets up: loe_kalman, aekf"
+            in capsys.readouterr().err)
 
 
 # ----------------------------------------------------------------------------------------- logs that cannot be read

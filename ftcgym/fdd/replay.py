@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import difflib
 import json
 import math
 import sys
@@ -119,7 +120,8 @@ def make_detector(name: str, log: FlightLog, identify=None, vehicle: str | None 
 CANNOT_REPLAY = {
     "loe_cusum": "its motor-speed confirmation needs measured rotor speeds, which a PX4 log does not carry (replay "
                  "makes them from the PWM), and its thrust test alone, set for the simulator's residuals, alarms in "
-                 "the take-off",
+                 "the take-off; an ftcgym recording carries them, but replay sets it up for neither (wrap the env "
+                 "with it instead)",
     "iv_change": "it needs the position, velocity and yaw references the vehicle was flown to (its instruments "
                  "are made from them), which replay does not read from a log",
     "airdata_ekf": "it needs a quad-plane's pitot airspeed, pusher speed and current and GNSS velocity, which a "
@@ -130,9 +132,13 @@ CANNOT_REPLAY = {
 
 
 def _detector_factory(name: str):
+    if name in CANNOT_REPLAY:
+        raise ValueError(f"detector {name!r} cannot replay a log: {CANNOT_REPLAY[name]}; replay sets up: "
+                         f"{', '.join(REPLAYABLE)}")
     if name not in REPLAYABLE:
-        why = f": {CANNOT_REPLAY[name]}" if name in CANNOT_REPLAY else ""
-        raise ValueError(f"detector {name!r} cannot replay a log{why}; replay sets up: {', '.join(REPLAYABLE)}")
+        close = difflib.get_close_matches(str(name), list(REPLAYABLE), n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        raise ValueError(f"detector: unknown name {name!r}{hint}; replay sets up: {', '.join(REPLAYABLE)}")
     return REPLAYABLE[name]
 
 
