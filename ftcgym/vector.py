@@ -117,7 +117,11 @@ class ParallelVectorEnv(VectorEnv):
     def step_each(self, actions):
         """`step` with the infos as a list, one dict per env (Stable-Baselines3's form)."""
         self._check_open("step")
-        _copy_batch(self.single_action_space, self._shared.action_view, actions)
+        try:
+            _copy_batch(self.single_action_space, self._shared.action_view, actions)
+        except ValueError as error:          # numpy's broadcast message, which does not say what it was copying
+            raise ValueError(f"actions: expected a batch of {self.num_envs} actions of shape "
+                             f"{self.single_action_space.shape} ({self.action_space.shape}); {error}") from None
         for worker in self._workers:
             worker.order(STEP)
         infos = self._gather(self._own_part(self._own.step, self._shared))
@@ -210,7 +214,9 @@ def make_parallel(env_id: str, num_envs: int = 1, **kwargs) -> ParallelVectorEnv
     """A `ParallelVectorEnv` of `num_envs` `gym.make(env_id, **kwargs)` envs; the keywords of
     `VECTOR_KEYWORDS` go to the vector env. The vector entry point of every ftcgym env."""
     vector = {key: kwargs.pop(key) for key in VECTOR_KEYWORDS if key in kwargs}
-    return ParallelVectorEnv([_EnvMaker(env_id, kwargs)] * num_envs, **vector)
+    if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
+        raise ValueError(f"num_envs: expected a whole number >= 1, got {num_envs!r}")
+    return ParallelVectorEnv([_EnvMaker(env_id, kwargs)] * int(num_envs), **vector)
 
 
 class _EnvMaker:

@@ -189,6 +189,17 @@ def test_actions_that_are_not_real_numbers_are_refused(action):
     env.close()
 
 
+@pytest.mark.parametrize("dtype", [np.longdouble, np.float16, np.int64])
+def test_actions_of_any_real_dtype_fly_as_their_float64_values(dtype):
+    observations = []
+    for action in (np.full(4, 1, dtype=dtype), np.full(4, 1.0)):
+        env = gym.make(Q)
+        env.reset(seed=0)
+        observations.append(env.step(action)[0])
+        env.close()
+    assert all(np.array_equal(observations[0][key], observations[1][key]) for key in observations[1])
+
+
 @pytest.mark.parametrize("env_id", [Q, AUTOPILOT])
 def test_step_and_reset_after_close_say_the_env_is_closed(env_id):
     env = gym.make(env_id)

@@ -172,3 +172,18 @@ def test_a_waiting_side_yields_its_core_between_polls(monkeypatch):
     assert semaphore.polls == 4 and len(yields) == 3      # one yield before each poll after the first
     semaphore = _Slow()                                    # no polling time: the blocking acquire, no yield
     assert vector._wait(semaphore, 0.0, lambda: True) and semaphore.polls == 4 and len(yields) == 3
+
+
+@pytest.mark.parametrize("num_envs", ["2", -1, 0, 2.5, True])
+def test_num_envs_must_be_a_whole_number_of_envs(num_envs):
+    with pytest.raises(ValueError, match=f"num_envs: expected a whole number >= 1, got {num_envs!r}"):
+        gym.make_vec(QUADROTOR, num_envs=num_envs)
+
+
+def test_a_batch_of_the_wrong_shape_is_named_as_the_actions():
+    envs = gym.make_vec(QUADROTOR, num_envs=2, workers=0, observation_format="flat", info_level="none")
+    envs.reset(seed=0)
+    with pytest.raises(ValueError, match=r"actions: expected a batch of 2 actions of shape \(4,\) \(\(2, 4\)\); could "
+                                         r"not broadcast"):
+        envs.step(np.zeros((2, 3)))
+    envs.close()

@@ -158,7 +158,7 @@ class QuadrotorEnv(FlightEnv):
                   else math.nan)
         if effort != effort:
             command = check_command(action, 4, 0.0, 1.0, "normalised rotor commands")
-            effort = rotor_command(np.array(command), low, span, omega_cmd)
+            effort = rotor_command(np.array(command, dtype=np.float64), low, span, omega_cmd)
         obs, terminated, truncated = self._advance()
         reward = self._reward(effort)
         return obs, reward, terminated, truncated, self._info()
