@@ -140,3 +140,11 @@ def test_atomic_write_leaves_no_temporary_file(tmp_path, monkeypatch):
     with pytest.raises(OSError, match="disk full"):
         atomic_write_text(path, "newer")
     assert [p.name for p in tmp_path.iterdir()] == ["study.json"] and path.read_text() == "new"
+
+
+@pytest.mark.parametrize("inside", ["", "sub"])
+def test_a_file_where_the_output_folder_goes_is_named(tmp_path, inside):
+    (tmp_path / "results").write_text("not a folder")
+    out = tmp_path / "results" / inside if inside else tmp_path / "results"
+    with pytest.raises(ValueError, match=f"--out {out}: a file is in the way"), OutputFolder(out):
+        pass

@@ -39,7 +39,11 @@ class OutputFolder:
         self.staging = self.path / STAGING_DIR
 
     def __enter__(self) -> OutputFolder:
-        self.path.mkdir(parents=True, exist_ok=True)
+        try:
+            self.path.mkdir(parents=True, exist_ok=True)
+        except (FileExistsError, NotADirectoryError):
+            raise ValueError(f"--out {self.path}: a file is in the way; the output folder must be a folder, or "
+                             f"not exist yet") from None
         key = self.path.resolve()
         if key in _held:
             fd, depth = _held[key]
