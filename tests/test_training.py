@@ -367,3 +367,20 @@ def test_the_rotor_loss_task_refuses_options_and_odd_actions():
         with pytest.raises(ValueError, match="action: "):
             env.step(action)
     env.close()
+
+
+@pytest.mark.parametrize("damage, message", [
+    (("model.zip", "garbage"), "model.zip: not a model saved by ftcgym train or SB3"),
+    (("manifest.json", "{not json"), "manifest.json: not a training manifest (JSON: "),
+    (("manifest.json", '{"config": "oops"}'), "manifest.json: not a training manifest (expected a JSON object"),
+])
+def test_evaluate_names_a_damaged_model_file(tmp_path, capsys, damage, message):
+    pytest.importorskip("stable_baselines3")
+    import shutil
+    folder = tmp_path / "model"
+    shutil.copytree(Path(ftcgym.__file__).parent / "training/shipped/rotor-loss-recovery", folder)
+    name, text = damage
+    (folder / name).write_text(text)
+    assert main(["evaluate", str(folder), "--episodes", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err

@@ -21,8 +21,6 @@ learned policy states where its thrust axis belongs after the alarm:
 """
 from __future__ import annotations
 
-import json
-
 import numpy as np
 
 from ftcgym.agents import flies_airspeed, is_quadplane, make_policy
@@ -41,6 +39,7 @@ from ftcgym.training.saved import (  # noqa: F401
     SavedModelPolicy,
     load_normalizer,
     model_files,
+    read_manifest,
 )
 
 TASK_ENV_ID = "ftcgym/RotorLossRecovery-v0"
@@ -164,8 +163,7 @@ def policy_name(env_id: str) -> str:
 def trained_env_id(path) -> str:
     """The env id the model saved at `path` was trained on (its manifest's; the rotor-loss task without one)."""
     _, _, manifest_path = model_files(path)
-    manifest = json.loads(manifest_path.read_text()) if manifest_path.is_file() else {}
-    return manifest.get("config", {}).get("env_id", TASK_ENV_ID)
+    return read_manifest(manifest_path).get("config", {}).get("env_id", TASK_ENV_ID)
 
 
 def load_policy(path, env):

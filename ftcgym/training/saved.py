@@ -6,6 +6,7 @@ import functools
 import json
 import pickle
 import re
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -84,15 +85,33 @@ def deterministic_action(model, observation) -> np.ndarray:
     return np.clip(actions, policy.action_space.low, policy.action_space.high)
 
 
+def read_manifest(path) -> dict:
+    """The manifest a training run wrote at `path` ({} where there is none): a JSON object whose `config`, if
+    any, is one too; anything else is a ValueError naming the file."""
+    path = Path(path)
+    if not path.is_file():
+        return {}
+    try:
+        manifest = json.loads(path.read_text())
+    except (ValueError, UnicodeDecodeError) as error:
+        raise ValueError(f"{path}: not a training manifest (JSON: {error})") from None
+    if not isinstance(manifest, dict) or not isinstance(manifest.get("config", {}), dict):
+        raise ValueError(f"{path}: not a training manifest (expected a JSON object with a 'config' object)")
+    return manifest
+
+
 @functools.lru_cache(maxsize=8)
 def _loaded_files(model_path: str, normalizer_path: str, manifest_path: str, stamp: tuple) -> tuple:
     """(config, model, normalizer) of a saved model's files; `stamp` (`_stamp`) keys a file changed on disk anew.
     The model and normalizer are shared by the policies made from them: they only predict (the normalizer does
     not update, `load_normalizer`)."""
     from ftcgym.training.train import algorithm_class
-    manifest = json.loads(Path(manifest_path).read_text()) if Path(manifest_path).is_file() else {}
-    config = manifest.get("config", {})
-    model = algorithm_class(config.get("algo") or _algo_of(Path(model_path))).load(model_path, device="cpu")
+    config = read_manifest(manifest_path).get("config", {})
+    try:
+        model = algorithm_class(config.get("algo") or _algo_of(Path(model_path))).load(model_path, device="cpu")
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile) as error:   # what a damaged archive raises
+        raise ValueError(f"{model_path}: not a model saved by ftcgym train or SB3 ({type(error).__name__}: "
+                         f"{error})") from None
     normalizer = load_normalizer(normalizer_path) if Path(normalizer_path).is_file() else None
     return config, model, normalizer
 
@@ -105,7 +124,6 @@ def _stamp(files) -> tuple:
 
 def _algo_of(model_path: Path) -> str:
     """The algorithm of a model saved without a manifest, from the zip's stored class name."""
-    import zipfile
     with zipfile.ZipFile(model_path) as archive:
         data = json.loads(archive.read("data"))
     text = json.dumps(data.get("policy_class", ""))
