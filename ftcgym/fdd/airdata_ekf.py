@@ -90,7 +90,7 @@ from ..models.quadplane_aero import aero_model, fuselage_loads, speed_squared, w
 from ..models.vsqp import VsqpParams
 from ..settings import updated
 from . import kalman
-from .base import ARRAY_TYPES, biquad_constants, biquad_step, model_with_error, vehicle_params
+from .base import ARRAY_TYPES, biquad_constants, biquad_step, check_time, model_with_error, vehicle_params
 from .pitot_detection import (
     C_ALARM,
     C_ALARM_TIME,
@@ -704,6 +704,7 @@ class AirdataEkfDetector:
         self._status = None                                  # what status() returns, when built
 
     def update(self, readings: dict, time: float, command=None) -> None:
+        check_time(time, self.name)
         try:
             parts = self._gather(readings)                    # the readings of `_keys`, then the pusher current
         except KeyError:
@@ -717,7 +718,11 @@ class AirdataEkfDetector:
         if self.pitot_key in readings:
             self._pitot = _first(readings[self.pitot_key])
         if not self.started:
-            if not self.takeoff(float(readings["position"][2])):   # Sec. 5.3: start once airborne
+            down = float(readings["position"][2])
+            if not math.isfinite(down):        # NaN is below no height: it would read as still on the ground
+                raise ValueError(f"airdata_ekf: reading 'position' is not finite at t = {time}: "
+                                 f"{np.asarray(readings['position']).tolist()}")
+            if not self.takeoff(down):          # Sec. 5.3: start once airborne
                 return
             self.started, self.start_time, self._next_time = True, float(time), float(time)
             self._status = None

@@ -7,6 +7,7 @@ or a row of a recorded log) and a time stamp, so the same object runs online in 
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -15,6 +16,19 @@ from scipy import signal
 
 from ..models.quadrotor import QuadrotorParams
 from ..models.vsqp import VsqpParams
+
+
+def check_time(time, detector: str) -> None:
+    """ValueError unless `time` (s, a detector's sample time) is a finite number: an alarm time of NaN would
+    pass every comparison silently."""
+    if not math.isfinite(time):
+        raise ValueError(f"{detector}: time must be a finite number of seconds, got {time!r}")
+
+
+def missing_reading(readings, keys, detector: str) -> ValueError:
+    """The error for readings that lack some of `keys` (a KeyError of the dict would not say which detector)."""
+    missing = [key for key in keys if key not in readings]
+    return ValueError(f"{detector}: readings: missing {missing}; it reads {list(keys)}")
 
 
 def vehicle_params(env, detector: str, kind: type):

@@ -96,7 +96,7 @@ from ..models.constants import GRAVITY
 from ..models.geometry import euler_from_quat, rotation_matrix
 from ..models.quadrotor import QuadrotorParams, rotor_wrench_matrix
 from ..settings import accepts, updated
-from .base import ARRAY_TYPES, AlarmLatch, vehicle_params
+from .base import ARRAY_TYPES, AlarmLatch, check_time, vehicle_params
 from .wrapper import DetectorWrapper
 
 READ_KEYS = ("gyro", "accel", "reference_position", "reference_velocity", "reference_yaw")
@@ -611,6 +611,7 @@ class IvChangeDetector:
         """One reading, compiled (`_sample`; the wind test's Kalman step, every `period` s, in numpy); a non-finite
         reading raises ValueError naming it, the state untouched. The wind test's CUSUM (before the grid samples,
         whose alarms come later in the latch) and the alarm latch are here."""
+        check_time(time, self.name)
         state, values = self._state, self._readings(readings)
         try:
             answer = _sample(state, self._constants, *values, time)

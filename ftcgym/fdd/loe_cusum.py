@@ -46,10 +46,11 @@ from numba import njit
 from ..models.constants import GRAVITY
 from ..models.quadrotor import QuadrotorParams
 from ..settings import updated
-from .base import AlarmLatch, biquad_constants, biquad_step, vehicle_params
+from .base import AlarmLatch, biquad_constants, biquad_step, check_time, missing_reading, vehicle_params
 from .loe_kalman import (
     NO_ALARM,
     NON_FINITE,
+    READINGS,
     TABLE_II,
     _sample,
     effectiveness_matrix,
@@ -137,11 +138,15 @@ class LoeCusumDetector:
         self._alarm.reset()
 
     def update(self, readings: dict, time: float, command=None) -> None:
-        """One sample, compiled (`_step`); a non-finite reading or command raises ValueError naming it, the state
-        untouched."""
+        """One sample, compiled (`_step`); a non-finite reading, command or time, or a missing reading, raises
+        ValueError naming it, the state untouched."""
+        check_time(time, self.name)
         command = _NO_COMMAND if command is None else np.asarray(command, dtype=np.float64)
-        rotor = _step(readings["gyro"], readings["accel"], readings["rotor_speed"], command, self._state,
-                      self._constants)
+        try:
+            gyro, accel, rotor_speed = readings["gyro"], readings["accel"], readings["rotor_speed"]
+        except KeyError:
+            raise missing_reading(readings, READINGS, self.name) from None
+        rotor = _step(gyro, accel, rotor_speed, command, self._state, self._constants)
         if rotor >= 0:
             self._alarm.trigger(time, rotor)
         elif rotor == NON_FINITE:

@@ -34,7 +34,7 @@ from ..models.constants import GRAVITY
 from ..models.quadrotor import QuadrotorParams
 from ..settings import accepts, updated
 from . import kalman
-from .base import AlarmLatch, biquad_constants, biquad_step, vehicle_params
+from .base import AlarmLatch, biquad_constants, biquad_step, check_time, missing_reading, vehicle_params
 
 #: 000 eq. (9): signs of each rotor's contribution to p_dot, q_dot and a_z for rotors r1..r4 of Fig. 2.
 SIGNS_000 = np.array([[1.0, -1.0, -1.0, 1.0],
@@ -50,6 +50,8 @@ TABLE_II = {"G": (100e-6, 100e-6, 5e-6), "Q": 0.1, "R": 1.0, "k_threshold": 0.25
 #: reported delays). With Q dT the delays fall within 000's reported range on tuning flights; see
 #: docs/measurements.md, 'Tuning record: fdd/loe_kalman.py'.
 Q_PER_SAMPLE = TABLE_II["Q"] * TABLE_II["step_size"]
+#: the readings the rotor-loss detectors read
+READINGS = ("gyro", "accel", "rotor_speed")
 #: a probability or an effectiveness threshold strictly between 0 and 1
 OPEN_FRACTION = Range(0.0, 1.0, open_low=True, open_high=True)
 VARIANCE_CEILING = 1e6  # published k_var is clipped here (the unobservable direction's variance grows without bound)
@@ -219,8 +221,14 @@ class LoeKalmanDetector:
         self._alarm.reset()
 
     def update(self, readings: dict, time: float, command=None) -> None:
-        """One sample, compiled (`_step`); a non-finite reading raises ValueError naming it, the state untouched."""
-        rotor = _step(readings["gyro"], readings["accel"], readings["rotor_speed"], self._state, self._constants)
+        """One sample, compiled (`_step`); a non-finite reading or time, or a missing reading, raises ValueError
+        naming it, the state untouched."""
+        check_time(time, self.name)
+        try:
+            gyro, accel, rotor_speed = readings["gyro"], readings["accel"], readings["rotor_speed"]
+        except KeyError:
+            raise missing_reading(readings, READINGS, self.name) from None
+        rotor = _step(gyro, accel, rotor_speed, self._state, self._constants)
         if rotor >= 0:
             self._alarm.trigger(time, rotor)
         elif rotor == NON_FINITE:

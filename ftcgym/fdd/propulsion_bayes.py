@@ -71,7 +71,7 @@ from ..models.pusher import TWO_PI, pusher_aero_torque
 from ..models.vsqp import VsqpParams
 from ..settings import accepts, updated
 from . import kalman
-from .base import AlarmLatch, model_with_error, vehicle_params
+from .base import AlarmLatch, check_time, missing_reading, model_with_error, vehicle_params
 from .wrapper import DetectorWrapper
 
 MODES = ("no_fault", "propeller_icing", "viscous_friction", "static_friction")   # 003 Sec. II-B, m = 0..3
@@ -301,8 +301,12 @@ class PropulsionBayesDetector:
 
     # ------------------------------------------------------------------ input
     def update(self, readings: dict, time: float, command=None) -> None:
+        check_time(time, self.name)
+        keys = ("pusher_speed", "pusher_current", self.airspeed_key)
         values = []
-        for key in ("pusher_speed", "pusher_current", self.airspeed_key):
+        for key in keys:
+            if key not in readings:
+                raise missing_reading(readings, keys, self.name)
             value = float(np.asarray(readings[key], dtype=float).reshape(-1)[0])
             if not math.isfinite(value):
                 raise ValueError(f"propulsion_bayes: reading {key!r} is not finite at t = {time}: {value!r}")
