@@ -227,13 +227,18 @@ def test_quad_plane_faults_do_not_count_as_never_returned():
 
 
 def test_latency_plot_takes_detected_and_recovered_fault_episodes(tmp_path):
-    rows = [episode(policy="a", fault_onset=2.0, detection_delay=0.05, recovery_time=2.9),
-            episode(policy="a", fault_onset=3.0, detection_delay=0.07, recovery_time=None),
-            episode(policy="a", fault_onset=4.0, detection_delay=None, recovery_time=None),
+    rows = [episode(policy="a", fault_onset=2.0, detection_delay=0.05, recovery_time=2.9, recovered=True),
+            episode(policy="a", fault_onset=3.0, detection_delay=0.07, recovery_time=None, recovered=False),
+            episode(policy="a", fault_onset=4.0, detection_delay=None, recovery_time=None, recovered=False),
+            # recovered, then crashed: not recovered, as the summary counts it
+            episode(policy="a", fault_onset=1.0, detection_delay=0.04, recovery_time=2.0, recovered=False,
+                    crashed=True),
             episode(policy="a"),                                   # fault-free: not counted
-            episode(policy="b", fault_onset=2.5, detection_delay=0.06, recovery_time=3.1)]
+            episode(policy="b", fault_onset=2.5, detection_delay=0.06, recovery_time=3.1, recovered=True)]
     n, delays, latencies = latency_samples(rows, "a")
-    assert (n, delays) == (3, [0.05, 0.07]) and latencies == pytest.approx([0.9])
+    assert (n, delays) == (4, [0.05, 0.07, 0.04]) and latencies == pytest.approx([0.9])
+    [summary] = metrics.summarize([row for row in rows if row["policy"] == "a"])
+    assert summary["recovery_latency_median"] == pytest.approx(0.9)          # the figure's sample, the table's
     assert latency_samples(rows, "b")[2] == pytest.approx([0.6])
     assert plot_latencies(tmp_path / "s-latency.png", "s", rows).stat().st_size > 0
 

@@ -240,10 +240,11 @@ def _strip(axes, row: float, values: np.ndarray, color: str) -> None:
 
 def latency_samples(episodes: list[dict], policy: str) -> tuple[int, list[float], list[float]]:
     """(fault episodes, detection delays, recovery latencies) of `policy`; undetected or unrecovered
-    episodes add no sample."""
+    episodes add no sample. Recovered as the summary counts it (`recovered`: one that recovered and then crashed
+    did not), so the figure and the table give the same count and median."""
     mine = [e for e in episodes if e["policy"] == policy and e["fault_onset"] is not None]
     delays = [e["detection_delay"] for e in mine if e["detection_delay"] is not None]
-    latencies = [e["recovery_time"] - e["fault_onset"] for e in mine if e["recovery_time"] is not None]
+    latencies = [e["recovery_time"] - e["fault_onset"] for e in mine if e["recovered"]]
     return len(mine), delays, latencies
 
 

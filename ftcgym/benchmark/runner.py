@@ -20,7 +20,7 @@ from ftcgym.agents import make_policy, policy_view, thrust_axis_reference
 from ftcgym.benchmark import metrics
 from ftcgym.benchmark.backends import Job, run_jobs
 from ftcgym.benchmark.scenarios import Scenario, get_scenario
-from ftcgym.fdd import published_detector, wrap_with_detector
+from ftcgym.fdd import DetectorWrapper, published_detector, wrap_with_detector
 from ftcgym.fdd.metrics import detection_delay, is_false_alarm
 
 TRAJECTORY_MAX_HZ = 50.0
@@ -268,11 +268,28 @@ def check_setup(scenario: Scenario, env_overrides: dict | None = None, policies=
         raise ValueError(f"scenario {scenario.name!r}: {error}") from error
     try:
         for policy in policies:
-            make_policy(policy, env)
+            _check_detector(make_policy(policy, env), policy, env)
     except (ValueError, TypeError) as error:
         raise ValueError(f"scenario {scenario.name!r}: {error}") from error
     finally:
         env.close()
+
+
+def _check_detector(policy, name: str, env) -> None:
+    """A policy that names a detector in `detector` reads its `info["fdd"]` status: the env must be wrapped with
+    it. An oracle (`uses_true_onset`) is given the true fault instead and is exempt."""
+    needed = getattr(policy, "detector", None)
+    if not isinstance(needed, str) or getattr(policy, "uses_true_onset", False):
+        return
+    wrapped = []
+    while isinstance(env, gym.Wrapper):
+        if isinstance(env, DetectorWrapper):
+            wrapped.append(env.detector.name)
+        env = env.env
+    if needed not in wrapped:
+        raise ValueError(f"policy {name!r} reads the {needed!r} detector, which this scenario's env is not wrapped "
+                         f"with ({', '.join(wrapped) or 'no detector'}); give --detector {needed} or a scenario "
+                         f"that has it")
 
 
 def run_episode(scenario: Scenario | str, policy_name: str, seed: int,
@@ -302,6 +319,8 @@ def run_benchmark(scenarios, policies=None, episodes: int | None = None, seed: i
     (ray_address, chunk, retries, callbacks).
     """
     scenarios = [get_scenario(s) if isinstance(s, str) else s for s in scenarios]
+    _no_repeats([scenario.name for scenario in scenarios], "scenarios")
+    _no_repeats(policies or (), "policies")
     for scenario in scenarios:
         check_setup(scenario, env_overrides, policies or scenario.policies)
     jobs = [Job(f"{scenario.name}/{policy}/{index}", scenario, policy, episode_seed(seed, index), env_overrides)
@@ -310,6 +329,16 @@ def run_benchmark(scenarios, policies=None, episodes: int | None = None, seed: i
             for index in range(episodes or scenario.episodes)]
     workers = min(workers or os.cpu_count() or 1, max(len(jobs), 1))
     return run_jobs(jobs, backend, workers, progress=progress, **backend_options)
+
+
+def _no_repeats(names, what: str) -> None:
+    """ValueError naming the first name given twice: its episodes would fly twice, with the same seeds, and count
+    twice in the summary."""
+    seen = set()
+    for name in names:
+        if name in seen:
+            raise ValueError(f"{what}: {name!r} is given twice; give each once")
+        seen.add(name)
 
 
 def _native(value):

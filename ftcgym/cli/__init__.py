@@ -40,13 +40,18 @@ USER_ERRORS = (ValueError, OSError, yaml.YAMLError, zipfile.BadZipFile)
 def main(argv: list[str] | None = None) -> int:
     """Run one subcommand. What a user got wrong (a bad value, file or folder; a folder in use) ends in one
     line on stderr and status 2, as argparse's usage errors do; episodes that failed end in their list and
-    status 1. FTCGYM_TRACEBACK=1 shows the traceback instead."""
+    status 1; Ctrl-C in one line and status 130. FTCGYM_TRACEBACK=1 shows the traceback instead."""
     argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser().parse_args(argv)
     from ftcgym.benchmark.backends import EpisodesFailed
     from ftcgym.benchmark.outputs import FolderInUse  # small modules: no simulator loads here
     try:
         return args.run(args, argv) or 0
+    except KeyboardInterrupt:   # Ctrl-C: one line, as for an error (`train` says what it saved itself)
+        if os.environ.get("FTCGYM_TRACEBACK"):
+            raise
+        print(f"ftcgym {args.command}: interrupted", file=sys.stderr)
+        return 130              # 128 + SIGINT, as a shell reports it
     except BrokenPipeError:     # the reader went away (`| head`): nothing to report; Python's docs' recipe
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141              # 128 + SIGPIPE, as a shell reports it

@@ -16,11 +16,12 @@ def add_parser(subparsers) -> None:
         description="Fly policies through benchmark scenarios and report detection and recovery metrics. "
                     "Without --scenario, runs the default scenarios. Writes results.json, episodes.csv, "
                     "report.md and plots to --out.")
-    parser.add_argument("--scenario", nargs="+", metavar="NAME", type=scenario,
-                        help="scenarios to run (default: the default set; see --list), or MODULE:ATTR")
-    parser.add_argument("--policy", nargs="+", metavar="NAME", type=policy_name,
+    parser.add_argument("--scenario", nargs="+", action="extend", metavar="NAME", type=scenario,
+                        help="scenarios to run (default: the default set; see --list), or MODULE:ATTR; repeating "
+                             "the option adds to the list")
+    parser.add_argument("--policy", nargs="+", action="extend", metavar="NAME", type=policy_name,
                         help="policies to fly in every scenario (default: each scenario's own), or MODULE:ATTR of "
-                             "a class or factory called with the env")
+                             "a class or factory called with the env; repeating the option adds to the list")
     parser.add_argument("--detector", metavar="NAME", type=detector_name,
                         help="detector to wrap every scenario's env with and score (default: each scenario's own), "
                              "or MODULE:ATTR of a Detector class or of a factory f(env, **kwargs)")

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import time
-import zipfile
 
 from .common import add_env_and_detector_arguments, non_negative_int, positive_int, scenario
 
@@ -31,12 +30,9 @@ def run(args, argv: list[str]) -> int:
     from ftcgym.training.evaluate import default_scenario, evaluate_model
 
     started = time.perf_counter()
-    try:
-        chosen = args.scenario if args.scenario is not None else get_scenario(default_scenario(args.model))
-        scenario = with_detector(chosen, args.detector, args.detector_kwargs)
-        summary, episodes = evaluate_model(args.model, scenario, args.episodes, args.seed, args.env_kwargs)
-    except zipfile.BadZipFile:
-        raise ValueError(f"model {args.model}: not a Stable-Baselines3 model (.zip)") from None
+    chosen = args.scenario if args.scenario is not None else get_scenario(default_scenario(args.model))
+    scenario = with_detector(chosen, args.detector, args.detector_kwargs)
+    summary, episodes = evaluate_model(args.model, scenario, args.episodes, args.seed, args.env_kwargs)
     print(format_table(summary))
     print(f"\n{len(episodes)} episodes in {time.perf_counter() - started:.1f} s")
     return 0
