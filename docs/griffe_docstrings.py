@@ -1,10 +1,12 @@
 """A Griffe extension for the documentation build (mkdocs.yml): it adapts ftcgym's plain docstrings to Markdown
 without touching the code.
 
-1. A class-level attribute without a docstring takes the comment at the end of its line as its docstring. ftcgym
-   documents the fields of its settings dataclasses that way:
+1. A class-level attribute without a docstring takes the comment at the end of its line as its docstring, or
+   else the comment lines just above it. ftcgym documents the fields of its settings dataclasses that way:
 
-       Q: float = Q_PER_SAMPLE            # process noise per sample, times I (see Q_PER_SAMPLE)
+       R: float = TABLE_II["R"]           # measurement noise, times I (Table II)
+       # process noise per sample, times I (see Q_PER_SAMPLE)
+       Q: float = field(default=Q_PER_SAMPLE, metadata=accepts(POSITIVE))
 
    Without this, mkdocstrings would list the field with its default but not its meaning.
 2. A paragraph of aligned definitions, two or more lines of the form `name:   text`, keeps one definition per
@@ -24,14 +26,31 @@ ALIGNED = re.compile(r"^\S.*?:\s{2,}\S")   # "name:   text": a label, a colon, t
 
 
 @cache
-def trailing_comments(path: str) -> dict[int, str]:
-    """Line number -> text of a comment that follows code on that line."""
-    comments = {}
+def comments_of(path: str) -> tuple[dict[int, str], dict[int, str]]:
+    """(line number -> text of a comment that follows code on that line, line number -> text of a comment line
+    that has no code)."""
+    trailing, whole = {}, {}
     source = Path(path).read_text(encoding="utf-8")
     for token in tokenize.generate_tokens(io.StringIO(source).readline):
-        if token.type == tokenize.COMMENT and token.line[:token.start[1]].strip():
-            comments[token.start[0]] = token.string.lstrip("#").strip()
-    return comments
+        if token.type == tokenize.COMMENT:
+            text = token.string.lstrip("#").strip()
+            (trailing if token.line[:token.start[1]].strip() else whole)[token.start[0]] = text
+    return trailing, whole
+
+
+def comment_of(path: str, first: int, last: int) -> str | None:
+    """The comment documenting the code on lines first..last: one at the end of them, else the comment lines
+    right above the first (joined)."""
+    trailing, whole = comments_of(path)
+    for line in (first, last):
+        if line in trailing:
+            return trailing[line]
+    above = []
+    line = first - 1
+    while line in whole:
+        above.insert(0, whole[line])
+        line -= 1
+    return " ".join(above) or None
 
 
 def keep_definition_lines(text: str) -> str:
@@ -58,8 +77,6 @@ class PlainDocstrings(griffe.Extension):
         filepath = attr.parent.filepath
         if isinstance(filepath, list) or not str(filepath).endswith(".py"):
             return
-        comments = trailing_comments(str(filepath))
-        for line in (attr.lineno, attr.endlineno):
-            if line in comments:
-                attr.docstring = griffe.Docstring(comments[line], lineno=line, parent=attr)
-                return
+        text = comment_of(str(filepath), attr.lineno, attr.endlineno or attr.lineno)
+        if text:
+            attr.docstring = griffe.Docstring(text, lineno=attr.lineno, parent=attr)

@@ -141,8 +141,9 @@ def write_markdown(path: Path, summary: list[dict], config: dict, plots: list[Pa
         "## Summary", markdown_table(summary), DEFINITIONS,
         "## Plots", "Altitude and horizontal path of every episode (dotted lines mark fault onsets, "
         "dashed black lines the reference, crosses crashes); for scenarios with faults, the detection delay and "
-        "the recovery latency of every episode by policy (boxes: quartiles), and the time history around the "
-        "fault of a fault-unaware flight beside the best-recovering policy's flight of the same episode. "
+        f"the recovery latency of every episode by policy (a box of the quartiles from {BOX_MIN} episodes on, a "
+        "median tick below), and the time history around the fault of a fault-unaware flight beside the "
+        "best-recovering policy's flight of the same episode. "
         f"Each PNG has a {vector} beside it (same name, .{style.VECTOR_FORMAT}) for papers.",
         "\n\n".join(plot_lines),
     ])

@@ -192,7 +192,7 @@ TASKS = {"hover": HoverTask, "goto": GotoTask, "square": SquareTask, "mission": 
 
 
 def make_task(task) -> HoverTask | GotoTask | SquareTask | MissionTask:
-    """A task from its name or a dict {"name": ..., <field>: value}; bad input raises ValueError."""
+    """A task from its name or a dict `{"name": ..., field: value}`; bad input raises ValueError."""
     if isinstance(task, tuple(TASKS.values())):
         return task
     options = {}

@@ -18,8 +18,8 @@ from the nominal controller at the `loe_kalman` alarm after a propeller loss.
   detector isolated) sees every simulator step's observation, as it would flying; its outer loop's commanded
   axis and collective thrust are features. It never flies: the agent's action is what flies.
 - Reward per agent step (the mean over the repeated simulator steps), from the quadrotor's reward
-  (`ftcgym/envs/quadrotor.py` docstring: r = 1 - 0.5 min(|p - p_ref|, 4) - 0.5 (1 - cos tilt)
-  - 0.05 mean(u^2), and -100 on a crash) with two changes:
+  (`ftcgym/envs/quadrotor.py` docstring: r = 1 - 0.5 min(|p - p_ref|, 4) - 0.5 (1 - cos tilt) -
+  0.05 mean(u^2), and -100 on a crash) with two changes:
       r = 1 - 1.0 min(|h - h_ref|, 4) - 0.25 min(|p_ne - p_ne,ref|, 4) - 0.05 mean(u^2),  -100 on a crash.
   Altitude is split from the horizontal error and weighted x2 (the benchmark's recovery criterion is
   altitude within 0.5 m), the horizontal error x0.5 (a spinning vehicle drifts while it settles); the
