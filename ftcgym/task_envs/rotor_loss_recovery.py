@@ -168,7 +168,8 @@ class RotorLossRecoveryEnv(gym.Env):
     def __init__(self, vehicle="bebop2", wind=None, onset=(2.0, 5.0), failed_rotor="random",
                  horizon_seconds: float = 5.0, action_repeat: int = 2, task="hover", agent_hz: float = 500.0,
                  detector_kwargs: dict | None = None, sensors: dict | None = None, expert: bool = False):
-        self.vehicles = [vehicle] if isinstance(vehicle, str) else list(vehicle) if isinstance(vehicle, list) else []
+        self.vehicles = [vehicle] if isinstance(vehicle, str) else list(vehicle) if isinstance(vehicle, (list, tuple)) \
+            else []
         if not self.vehicles or not all(isinstance(v, str) and v in VEHICLES for v in self.vehicles):
             raise ValueError(f"vehicle: expected a parameter set or a list of them, of {sorted(VEHICLES)}; "
                              f"got {vehicle!r}")
