@@ -353,10 +353,12 @@ def test_bench_cli_end_to_end(tmp_path, capsys):
         for name in ("results.json", "quad-plane-cruise.png"):
             earlier.staged(name).write_text("earlier")
         earlier.publish()
-    assert main(["bench", "--scenario", "quad-hover", "--episodes", "1", "--workers", "1",
+    assert main(["bench", "--scenario", "quad-hover", "--episodes", "1", "--workers", "4",
                  "--env-kwargs", '{"max_episode_seconds": 2}', "--out", str(tmp_path)]) == 0
     results = json.loads((tmp_path / "results.json").read_text())
     assert set(results) == {"summary", "episodes", "config"}
+    assert results["config"]["workers"] == 1         # one episode flies in one process, whatever was asked
+    assert "--workers 4" in results["config"]["command"]
     assert [list(row) for row in results["episodes"]] == [DESIGN_EPISODE_FIELDS + RETURN_FIELDS + QUADPLANE_FIELDS]
     assert [list(row) for row in results["summary"]] == [DESIGN_SUMMARY_FIELDS]
     [row] = results["episodes"]
@@ -368,7 +370,7 @@ def test_bench_cli_end_to_end(tmp_path, capsys):
     assert (tmp_path / "quad-hover.png").stat().st_size > 0
     assert (tmp_path / "quad-hover.pdf").read_bytes()[:4] == b"%PDF"   # the vector copy beside the PNG
     report = (tmp_path / "report.md").read_text()
-    assert "quad-hover.png" in report and "PDF" in report
+    assert "quad-hover.png" in report and "PDF" in report and "1 process," in report
     assert "quad-hover" in capsys.readouterr().out
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([   # this run's files only, published whole
         ".ftcgym.lock", ".ftcgym-files.json", "results.json", "episodes.csv", "report.md", "quad-hover.png",

@@ -127,6 +127,10 @@ def write_csv(path: Path, rows: list[dict]) -> Path:
     return path
 
 
+def _count(n: int, one: str, many: str) -> str:
+    return f"{n} {one if n == 1 else many}"
+
+
 def write_markdown(path: Path, summary: list[dict], config: dict, plots: list[Path]) -> Path:
     scenario_lines = [f"- `{s['name']}` ({s['env_id']}, policies {', '.join(s['policies'])}, "
                       f"{s['episodes']} episodes): {s['description']}" for s in config["scenarios"]]
@@ -135,7 +139,7 @@ def write_markdown(path: Path, summary: list[dict], config: dict, plots: list[Pa
     text = "\n\n".join([
         "# ftcgym benchmark",
         f"`{config['command']}` (ftcgym {config['ftcgym_version']}, seed {config['seed']}, "
-        f"{config['workers']} workers, {config['wall_time_s']:.0f} s wall time). Environment "
+        f"{_count(config['workers'], 'process', 'processes')}, {config['wall_time_s']:.0f} s wall time). Environment "
         "overrides: " + (f"`{json.dumps(config['env_overrides'])}`" if config["env_overrides"] else "none") + ".",
         "## Scenarios", "\n".join(scenario_lines),
         "## Summary", markdown_table(summary), DEFINITIONS,

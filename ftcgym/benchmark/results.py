@@ -23,7 +23,8 @@ def with_detector(scenario: Scenario, detector: str | None = None, detector_kwar
 def run_config(command: str, version: str, scenarios: list[Scenario], *, seed: int, episodes: int | None,
                policies: list[str] | None, workers: int, backend: str, env_overrides: dict,
                wall_time_s: float) -> dict:
-    """The run's settings as results.json records them: enough to repeat it. Names are kept as given."""
+    """The run's settings as results.json records them: enough to repeat it. Names are kept as given; `workers` is
+    the number of processes that flew (the command keeps the number asked for)."""
     return {
         "command": command,
         "ftcgym_version": version,

@@ -327,8 +327,13 @@ def run_benchmark(scenarios, policies=None, episodes: int | None = None, seed: i
             for scenario in scenarios
             for policy in (policies or scenario.policies)
             for index in range(episodes or scenario.episodes)]
-    workers = min(workers or os.cpu_count() or 1, max(len(jobs), 1))
-    return run_jobs(jobs, backend, workers, progress=progress, **backend_options)
+    return run_jobs(jobs, backend, pool_size(workers, len(jobs)), progress=progress, **backend_options)
+
+
+def pool_size(workers: int | None, episodes: int) -> int:
+    """The processes a run of `episodes` episodes uses when `workers` are asked for (None: one per CPU): no more
+    than there are episodes."""
+    return min(workers or os.cpu_count() or 1, max(episodes, 1))
 
 
 def _no_repeats(names, what: str) -> None:

@@ -57,14 +57,16 @@ def bench(args, argv: list[str], scenarios) -> int:
     """Fly `scenarios`, write the report to args.out and print the summary table."""
     from ftcgym.benchmark.report import format_table, write_report
     from ftcgym.benchmark.results import results_document, run_config
-    from ftcgym.benchmark.runner import run_benchmark
+    from ftcgym.benchmark.runner import pool_size, run_benchmark
 
     started = time.perf_counter()
     episodes = run_benchmark(scenarios, args.policy, args.episodes, args.seed, args.workers, args.env_kwargs,
                              backend=args.backend, ray_address=args.ray_address, chunk=args.chunk,
                              retries=args.retries)
+    # the processes that flew (a Ray cluster joined by address has its own size: the number asked for is kept)
+    workers = args.workers if args.ray_address else pool_size(args.workers, len(episodes))
     config = run_config(shlex.join(["ftcgym", *argv]), package_version(), scenarios, seed=args.seed,
-                        episodes=args.episodes, policies=args.policy, workers=args.workers, backend=args.backend,
+                        episodes=args.episodes, policies=args.policy, workers=workers, backend=args.backend,
                         env_overrides=args.env_kwargs, wall_time_s=time.perf_counter() - started)
     results = results_document(episodes, config)
     paths = write_report(args.out, results, episodes)
