@@ -88,6 +88,13 @@ def test_every_policy_keeps_its_colour_and_others_get_unused_ones():
     assert style.policy_colors(["ftc-spin"])["ftc-spin"] == colors["ftc-spin"]
 
 
+def test_policies_that_fly_the_same_path_differ_in_dashes_as_well():
+    lines = style.policy_lines(["pitot-only", "oracle-airspeed", "pitot-only", "mine"])
+    assert list(lines) == ["pitot-only", "oracle-airspeed", "mine"]
+    assert lines["pitot-only"] == {"color": style.POLICY_COLORS["pitot-only"], "ls": "-"}
+    assert len({str(line["ls"]) for line in lines.values()}) == 3
+
+
 # ---- which flights the event figure shows ----
 
 def row(policy, seed, recovered, recovery_time=None, crashed=False, onset=2.0):

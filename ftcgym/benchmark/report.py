@@ -157,8 +157,9 @@ def write_markdown(path: Path, summary: list[dict], config: dict, plots: list[Pa
 
 def plot_scenario(path: Path, scenario: str, episodes: list[dict]) -> Path:
     """Altitude vs time and the horizontal path (north up, east right) of each episode, by policy; fault onsets
-    dotted, crashes crossed. Writes the PNG at `path` and its vector copy beside it; returns `path`."""
-    policies = style.policy_colors(episode["policy"] for episode in episodes)
+    dotted, crashes crossed; each policy its colour and dashes (`style.policy_lines`). Writes the PNG at `path`
+    and its vector copy beside it; returns `path`."""
+    policies = style.policy_lines(episode["policy"] for episode in episodes)
     with style.paper():
         figure = Figure(figsize=style.size(2, 2.7), layout="constrained")
         altitude_axes, path_axes = figure.subplots(1, 2, width_ratios=(3, 2))
@@ -170,14 +171,14 @@ def plot_scenario(path: Path, scenario: str, episodes: list[dict]) -> Path:
         for onset in sorted({e["fault_onset"] for e in episodes if e["fault_onset"] is not None}):
             altitude_axes.axvline(onset, color=style.GREY, ls=":", lw=0.8, zorder=1)
         for episode in episodes:
-            color, trajectory = policies[episode["policy"]], episode["trajectory"]
-            north, east, altitude = (trajectory["position"] * (1, 1, -1)).T
-            altitude_axes.plot(trajectory["time"], altitude, color=color, lw=0.9, alpha=0.8)
-            path_axes.plot(east, north, color=color, lw=0.9, alpha=0.8)
+            line, trajectory = policies[episode["policy"]], episode["trajectory"]
+            color, north, east, altitude = line["color"], *(trajectory["position"] * (1, 1, -1)).T
+            altitude_axes.plot(trajectory["time"], altitude, lw=0.9, alpha=0.8, **line)
+            path_axes.plot(east, north, lw=0.9, alpha=0.8, **line)
             if episode["crashed"]:
                 altitude_axes.plot(trajectory["time"][-1], altitude[-1], "x", color=color, ms=5, mew=1.2)
                 path_axes.plot(east[-1], north[-1], "x", color=color, ms=5, mew=1.2)
-        handles = [Line2D([], [], color=color, label=policy) for policy, color in policies.items()]
+        handles = [Line2D([], [], label=policy, **line) for policy, line in policies.items()]
         handles.append(Line2D([], [], color=style.REFERENCE_COLOR, ls="--", lw=0.8, label="reference"))
         if any(e["fault_onset"] is not None for e in episodes):
             handles.append(Line2D([], [], color=style.GREY, ls=":", lw=0.8, label="fault onset"))

@@ -82,6 +82,18 @@ def policy_colors(policies) -> dict[str, str]:
     return {policy: colors[policy] for policy in policies}
 
 
+#: line styles of the policies in a plot, in order: where two policies fly the same path, the dashes of the later
+#: one show the earlier one's line under it (the grey dotted line is the fault onset's)
+POLICY_DASHES = ("-", (0, (5, 2.5)), (0, (1.2, 1.8)), (0, (7, 2, 1.5, 2)), (0, (3, 3)))
+
+
+def policy_lines(policies) -> dict[str, dict]:
+    """Matplotlib line keywords per policy: its colour (`policy_colors`) and a line style of POLICY_DASHES."""
+    colors = policy_colors(policies)
+    return {policy: {"color": color, "ls": POLICY_DASHES[i % len(POLICY_DASHES)]}
+            for i, (policy, color) in enumerate(colors.items())}
+
+
 @dataclass(frozen=True)
 class Signal:
     """A plotted quantity: `name` in words, `unit` (None: dimensionless, shown without one), the legend names of
