@@ -12,6 +12,8 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 import ftcgym  # noqa: F401
 from ftcgym.agents import make_policy
 from ftcgym.benchmark.runner import roll_out, score_episode
+from ftcgym.envs.flight_env import PHYSICS_HZ
+from ftcgym.envs.quadplane import QuadPlaneEnv
 
 IDS = ("ftcgym/QuadPlane-v0", "ftcgym/QuadPlaneAutopilot-v0")
 
@@ -62,6 +64,40 @@ def test_bad_input_names_the_field():
     autopilot.reset(seed=0)
     with pytest.raises(ValueError, match="airspeed must be finite"):
         autopilot.step(np.array([np.inf]))
+
+
+def open_loop_cruise_roll_rate(physics_hz: float, airspeed: float) -> float:
+    """|p| after 1 s of trimmed wings-level cruise at `airspeed`, controls held, a 0.2 rad/s roll-rate start."""
+    from ftcgym.agents.quadplane_trim import trim
+    from ftcgym.models.geometry import quat_from_euler
+    from ftcgym.models.pusher import throttle_for_speed
+    env = gym.make("ftcgym/QuadPlane-v0", task={"name": "hover", "altitude": 5.0}, physics_hz=physics_hz,
+                   agent_hz=50.0).unwrapped
+    p = env.params
+    point = trim(p, airspeed)
+    alpha = point["alpha"]
+    env.reset(seed=0)
+    env.world.reset(np.array([0.0, 0.0, -200.0]), quat_from_euler(0.0, alpha, 0.0), np.array([airspeed, 0.0, 0.0]),
+                    np.array([0.2, 0.0, 0.0]))
+    env._read_state()
+    env._motion[0], env._motion[2] = math.pi / 2, point["elevator"]
+    forward = airspeed * math.cos(alpha)
+    env.pusher.reset(point["pusher_omega"], forward)
+    action = np.zeros(9, dtype=np.float32)
+    action[4] = throttle_for_speed(p, point["pusher_omega"], forward)
+    action[6], action[8] = point["elevator"] / p.surface_limit[1], 1.0
+    for _ in range(50):
+        obs, reward, terminated, truncated, info = env.step(action)
+    env.close()
+    return abs(info["truth"]["body_rates"][0])
+
+
+def test_the_stiff_roll_mode_needs_250_hz_physics(monkeypatch):
+    with pytest.raises(ValueError, match=r"physics_hz: must be in \[250, 20000\], got 200"):
+        gym.make("ftcgym/QuadPlane-v0", physics_hz=200.0)
+    assert open_loop_cruise_roll_rate(250.0, 26.0) < 0.2          # the roll is damped at the lowest rate
+    monkeypatch.setattr(QuadPlaneEnv, "PHYSICS_HZ", PHYSICS_HZ)   # the range every env accepts
+    assert open_loop_cruise_roll_rate(100.0, 22.0) > 10.0         # why: explicit loads diverge at 100 Hz
 
 
 def test_rests_on_the_ground_nose_into_the_wind_and_hovers_on_the_trim_speed():

@@ -29,6 +29,9 @@ class FaultAfterEndWarning(UserWarning):
     """A fault's onset is at or after the episode's end: it may never act."""
 
 
+PHYSICS_HZ = Range(50.0, 20_000.0)   # Hz: coarser steps miss the motor lag, finer ones add cost, not accuracy
+
+
 class FlightEnv(gym.Env):
     """Base class. Subclasses set the class constants, call `_setup` first in `__init__`, and implement
     `_make_params(vehicle, overrides)`, `_parse_faults(faults)`, `_build_vehicle()` (the parts made from
@@ -45,6 +48,7 @@ class FlightEnv(gym.Env):
     RESET_OPTIONS = ("faults", "wind", "vehicle_overrides")
     TASKS = ("hover", "goto", "square", "mission")    # the tasks a vehicle flies (`tasks.TASKS` names)
     BOUNDS = 100.0        # m, half-width of the flight box
+    PHYSICS_HZ = PHYSICS_HZ   # the physics rates the vehicle's model stays stable and accurate at
     CEILING = 100.0       # m
     MAX_SPEED = 100.0     # m/s, observation bound on velocities
     CRASH_SPEED = 2.0     # m/s, ground contact faster than this is an impact
@@ -59,7 +63,7 @@ class FlightEnv(gym.Env):
         no_unknown(unknown or {}, KEYWORDS, "gym.make keyword")
         self.vehicle = vehicle
         self.params = self._configured_params = self._make_params(vehicle, vehicle_overrides)
-        self.physics_hz, self.agent_hz = check_rates(physics_hz, agent_hz)
+        self.physics_hz, self.agent_hz = check_rates(physics_hz, agent_hz, self.PHYSICS_HZ)
         self.substeps = int(round(self.physics_hz / self.agent_hz))
         self.dt = 1.0 / self.physics_hz
         self._step_state = without_dispatch(step_state, RAW_EXAMPLE, RAW_EXAMPLE, self.dt, GRAVITY)
@@ -368,13 +372,13 @@ def _whole(rate: float):
     return int(rate) if float(rate).is_integer() else float(rate)
 
 
-PHYSICS_HZ = Range(50.0, 20_000.0)   # Hz: coarser steps miss the motor lag, finer ones add cost, not accuracy
 MAX_SUBSTEPS = 1000           # physics steps per agent step
 
 
-def check_rates(physics_hz, agent_hz) -> tuple[float, float]:
-    """The physics and agent rates: numbers with physics_hz / agent_hz a whole number of substeps."""
-    physics_hz = number(physics_hz, "physics_hz", PHYSICS_HZ)
+def check_rates(physics_hz, agent_hz, accepted: Range = PHYSICS_HZ) -> tuple[float, float]:
+    """The physics and agent rates: physics_hz within `accepted` (the env's own range), and physics_hz / agent_hz a
+    whole number of substeps."""
+    physics_hz = number(physics_hz, "physics_hz", accepted)
     agent_hz = number(agent_hz, "agent_hz", POSITIVE)
     ratio = physics_hz / agent_hz
     if abs(ratio - round(ratio)) > 1e-9 or not 1 <= round(ratio) <= MAX_SUBSTEPS:

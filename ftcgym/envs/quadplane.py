@@ -29,6 +29,7 @@ import numpy as np
 from gymnasium import spaces
 from numba import njit
 
+from ..models.checks import Range
 from ..models.compiled import without_dispatch
 from ..models.faults import QUADPLANE_KINDS, FaultSchedule, parse_faults, resolve
 from ..models.geometry import quat_from_euler
@@ -45,7 +46,7 @@ from ..models.sensors import (
 )
 from ..models.vsqp import make_vsqp_params
 from .action_space import ActionBox
-from .flight_env import RENDER_SIZE, FlightEnv, check_action
+from .flight_env import PHYSICS_HZ, RENDER_SIZE, FlightEnv, check_action
 from .frames import RAW_EXAMPLE, body_state, to_bullet
 from .visuals import QuadPlaneLook
 
@@ -72,6 +73,11 @@ class QuadPlaneEnv(FlightEnv):
     TASKS = ("mission", "hover")
     BOUNDS, CEILING = 2000.0, 1000.0   # m
     CRASH_SPEED = 3.0                  # m/s, ground contact faster than this is an impact (a 6.5 kg airframe)
+    # The roll mode is stiff: roll damping L_p about -0.28 V N m s (quadplane_aero) on 001 eq. 8.1's
+    # Ixx = 2.862e-2 kg m^2 gives a time constant of about 5.7 ms at 18 m/s and 2.9 ms at 35 m/s. The loads act
+    # from the last step's state (explicit), which is stable only for steps under twice that: 100 Hz diverged
+    # open-loop at 22 m/s; 250 Hz keeps a margin to about 50 m/s.
+    PHYSICS_HZ = Range(250.0, PHYSICS_HZ.high)
 
     def __init__(self, vehicle: str = "vsqp", vehicle_overrides: dict | None = None, wind: dict | None = None,
                  faults=None, task="mission", max_episode_seconds: float = 240.0, physics_hz: float = 500.0,
