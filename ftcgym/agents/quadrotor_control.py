@@ -26,7 +26,10 @@ class ControllerGains:
     position: tuple = (1.6, 1.6, 2.0)       # 1/s^2, acceleration per metre of error
     velocity: tuple = (2.4, 2.4, 3.0)       # 1/s
     position_integral: tuple = (0.4, 0.4, 0.8)
-    integral_limit: float = 2.0             # m/s^2, anti-windup on the integral's acceleration
+    integral_limit: float = 2.0             # m/s^2, anti-windup on the integral's horizontal acceleration
+    # m/s^2, the same upward and downward; None: all the rotors give beyond hover, g (T_max / W - 1), so the
+    # integral trims out any payload the vehicle can lift (2 m/s^2 left Mueller's 0.5 kg + 0.5 kg 3.9 m low)
+    vertical_integral_limit: float | None = None
     attitude: tuple = (7.0, 7.0, 2.5)       # 1/s, rate command per rad of attitude error
     rate: tuple = (18.0, 18.0, 8.0)         # 1/s, angular acceleration per rad/s of rate error
     rate_integral: tuple = (60.0, 60.0, 10.0)  # 1/s^2, integral of rate error -> angular acceleration
@@ -46,6 +49,14 @@ class ControllerGains:
 VEHICLE_GAINS = {"bebop2": {"rate": (60.0, 60.0, 8.0)}}
 
 
+def vertical_integral_limit(params: QuadrotorParams, gains: ControllerGains) -> float:
+    """The gains' vertical_integral_limit, or by default the acceleration the rotors give beyond hover at full
+    speed, g (4 c_T omega_max^2 / (m g) - 1) (000 eq. 3)."""
+    if gains.vertical_integral_limit is not None:
+        return gains.vertical_integral_limit
+    return 4 * params.thrust_coefficient * params.omega_max ** 2 / params.mass - GRAVITY
+
+
 def gains_for(params: QuadrotorParams) -> ControllerGains:
     """The default gains with the vehicle's entries of VEHICLE_GAINS applied."""
     return replace(ControllerGains(), **VEHICLE_GAINS.get(params.name, {}))
@@ -55,7 +66,8 @@ def gains_for(params: QuadrotorParams) -> ControllerGains:
 #: inertia and the rate integral's limit (rad/s^2)
 KP, KD, KI, KATT, KRATE, KRATE_I, MAX_RATE, INERTIA, RATE_INTEGRAL_LIMIT = range(9)
 #: entries of `NominalController._scalars`
-DT, MASS, INTEGRAL_LIMIT, MAX_HORIZONTAL, GYRO_ALPHA, W2_MIN, W2_MAX, OMEGA_MIN, OMEGA_MAX = range(9)
+(DT, MASS, INTEGRAL_LIMIT, MAX_HORIZONTAL, GYRO_ALPHA, W2_MIN, W2_MAX, OMEGA_MIN, OMEGA_MAX,
+ VERTICAL_INTEGRAL_LIMIT) = range(10)
 
 
 class NominalController:
@@ -84,7 +96,8 @@ class NominalController:
         self._scalars = np.array([self.dt, params.mass, g.integral_limit,
                                   GRAVITY * np.tan(np.deg2rad(g.max_tilt_deg)),
                                   1.0 - np.exp(-2 * np.pi * g.gyro_cutoff_hz * self.dt),
-                                  params.omega_min ** 2, params.omega_max ** 2, params.omega_min, params.omega_max])
+                                  params.omega_min ** 2, params.omega_max ** 2, params.omega_min, params.omega_max,
+                                  vertical_integral_limit(params, g)])
         self.reset()
 
     def reset(self, obs: dict | None = None, info: dict | None = None) -> None:
@@ -134,11 +147,13 @@ def _control_step(attitude, position, velocity, reference_position, reference_ve
 def _acceleration_command(position, velocity, reference_position, reference_velocity, pos_integral, gains,
                           scalars):  # pragma: no cover (compiled)
     """Desired NED acceleration: position and velocity PID, the integral's acceleration clipped to
-    +-integral_limit (anti-windup, the integral kept consistent with the clip), the horizontal part limited to
-    the tilt limit's and at most 0.8 g downward (never less than 20% of hover thrust)."""
-    dt, limit, max_horizontal = scalars[DT], scalars[INTEGRAL_LIMIT], scalars[MAX_HORIZONTAL]
+    +-integral_limit horizontally and +-vertical_integral_limit vertically (anti-windup, the integral kept
+    consistent with the clip), the horizontal part limited to the tilt limit's and at most 0.8 g downward (never
+    less than 20% of hover thrust)."""
+    dt, max_horizontal = scalars[DT], scalars[MAX_HORIZONTAL]
     accel = np.empty(3)
     for i in range(3):
+        limit = scalars[INTEGRAL_LIMIT] if i < 2 else scalars[VERTICAL_INTEGRAL_LIMIT]
         error = reference_position[i] - position[i]
         ki = gains[KI, i]
         integral = min(max(ki * (pos_integral[i] + error * dt), -limit), limit)

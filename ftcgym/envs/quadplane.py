@@ -7,7 +7,7 @@ motor (003 eq. 1-5, `pusher.py`), aileron, elevator and rudder. Forces and momen
 
 Action: Box (9,) float32, clipped to its bounds (a wrong shape or a non-finite value raises ValueError):
   [0:4] hover-rotor speed commands in [0, 1] (omega = omega_min + u (omega_max - omega_min), rotor order of
-        `VsqpParams.hover_rotor_positions`), [4] pusher throttle in [0, 1] (motor current share, 003 eq. 1),
+        `VsqpParams.hover_rotor_positions`), [4] pusher throttle in [0, 1] (share of the battery voltage, pusher.py),
   [5:8] aileron, elevator, rudder in [-1, 1] (fractions of `surface_limit`), [8] wing skew command in
         [0, 1] (0 to 90 deg; the wing follows at `skew_rate_limit`).
 

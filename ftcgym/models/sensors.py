@@ -45,7 +45,7 @@ class SensorConfig:
     """Noise levels (1-sigma per sample) and rates; override with the env's `sensors` kwarg."""
 
     gyro_noise: float = 0.005           # rad/s; MPU-6050 density 0.005 deg/s/sqrt(Hz) plus airframe noise
-    accel_noise: float = 0.05           # m/s^2; MPU-6050 400 ug/sqrt(Hz) over 250 Hz
+    accel_noise: float = 0.05           # m/s^2; MPU-6050 400 ug/sqrt(Hz) over its 184 Hz low-pass: 0.053
     gyro_bias: float = 0.005            # rad/s, per-episode constant bias sigma
     accel_bias: float = 0.05            # m/s^2
     gyro_vibration: float = 0.03        # rad/s amplitude per rotor at hover speed
@@ -232,7 +232,8 @@ class QuadPlaneSensorConfig(SensorConfig):
     rotor_speed_noise: float = 2.0        # rad/s, ESC telemetry of the hover motors, assumed
     pitot_noise: float = 0.3              # m/s, differential-pressure airspeed (MS4525-class at cruise), assumed
     pitot_time_constant: float = 0.05     # s, pneumatic lag of the pitot line, assumed
-    gnss_velocity_noise: float = 0.0064   # m/s, 001 Table 1: sigma_Vx^2 = 4.1e-5 (m/s)^2 (V_z 1.4e-4: 0.012)
+    gnss_velocity_noise: float = 0.0064   # m/s, 001 Table 1: sigma_Vx^2 = 4.1e-5 (m/s)^2; V_z twice this, 0.0128
+                                          # (departs from 001's 1.4e-4, 0.0118: docs/vehicles.md)
     gnss_hz: float = 10.0                 # Hz, GNSS velocity rate (u-blox class receiver), assumed
     skew_noise: float = 0.002             # rad, wing-angle encoder, assumed
     pusher_speed_noise: float = 0.71      # rad/s, 003 Sec. IV-B: omega noise covariance 5e-1
