@@ -113,6 +113,15 @@ def test_pusher_static_thrust_about_30_n_at_full_throttle():
     assert pusher_thrust(P, 0.0, 20.0) == 0.0
 
 
+def test_at_its_speed_limit_the_pusher_draws_the_current_that_holds_it():
+    motor = PusherMotor(P)
+    settle(motor, 1.0, 18.0)                 # full throttle at cruise speed: the propeller unloads to the limit
+    assert motor.omega == P.pusher_omega_max
+    # 003 eq. (1) at d omega/dt = 0, not (V_bat - k_e omega) / R: about 38 A, where the clamp alone read 44 A
+    assert motor.current == pytest.approx(steady_state_current(P, P.pusher_omega_max, 18.0), rel=1e-9)
+    assert motor.current < (P.battery_voltage - P.pusher_motor_constant * P.pusher_omega_max) / P.pusher_resistance
+
+
 @pytest.mark.parametrize("handle, value", [("theta_1", 1.1), ("c_v", 1.1 * P.pusher_viscous_friction),
                                            ("I_0", 1.1 * P.pusher_zero_load_current)])
 def test_faults_raise_current_at_the_same_speed(handle, value):
@@ -258,3 +267,42 @@ def test_parameters_match_001_app_b():
     assert P.hover_torque_coefficient / P.hover_thrust_coefficient == pytest.approx(2.85e-2)
     thrust_to_weight = 4 * P.hover_thrust_coefficient * P.hover_omega_max ** 2 / P.weight
     assert 1.9 < thrust_to_weight < 2.1                         # 001 Table 5.1: thrust-to-weight 2
+
+
+# --- the spinning propellers ----------------------------------------------------------
+
+def test_spinning_propellers_give_their_spin_up_reaction_and_gyroscopic_moment():
+    from ftcgym.models.quadplane_aero import FUSELAGE_ARM, ROTOR_TILT, QuadPlaneAero, rotor_inertia_moment
+    from ftcgym.models.vsqp import rotor_geometry
+    c = QuadPlaneAero(P).constants
+    spin = P.propeller_inertia * np.asarray(P.hover_yaw_signs, dtype=float)
+    _, axes = rotor_geometry(0.0, 1.0, *c[FUSELAGE_ARM:ROTOR_TILT + 1], np.asarray(P.hover_yaw_signs, dtype=float))
+    # rotor 0 alone spinning up at 100 rad/s^2, the body still: -I_p s_0 (d omega/dt) a_0
+    moment = rotor_inertia_moment(c, np.zeros(4), np.array([100.0, 0, 0, 0]), spin, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0)
+    np.testing.assert_allclose(moment, -spin[0] * 100.0 * np.array(axes[0]), rtol=1e-12)
+    # the pusher's angular momentum H x_b under a pitch rate q: -Omega x H = (0, -r H, q H)
+    moment = rotor_inertia_moment(c, np.zeros(4), np.zeros(4), spin, 1.0, 0.0, 0.0, 0.5, 0.0, 0.2)
+    np.testing.assert_allclose(moment, (0.0, 0.0, 0.1), atol=1e-15)
+
+
+def test_a_yaw_differential_step_yaws_the_quad_plane_by_the_spin_up_reaction():
+    """+-20 rad/s on the two rotor pairs: the spin-up reaction, I_p sum s_i d omega_i/dt about 0.39 N m at once,
+    is ten times the drag-torque change, and sets the yaw rate after 20 ms (about 0.046 rad/s; 0.004 without)."""
+    import gymnasium as gym
+
+    import ftcgym  # noqa: F401
+    from ftcgym.models.geometry import quat_from_euler
+    env = gym.make("ftcgym/QuadPlane-v0", task={"name": "hover", "altitude": 5.0}).unwrapped
+    env.reset(seed=0)
+    env.world.reset(np.array([0.0, 0.0, -50.0]), quat_from_euler(0.0, 0.0, 0.0), np.zeros(3), np.zeros(3))
+    env._read_state()
+    env.hover_rotors.reset(P.hover_omega)
+    signs = np.asarray(P.hover_yaw_signs, dtype=float)
+    action = np.zeros(9, dtype=np.float32)
+    span = P.hover_omega_max - P.hover_omega_min
+    action[:4] = (P.hover_omega + 20.0 * signs - P.hover_omega_min) / span
+    for _ in range(2):
+        obs, reward, terminated, truncated, info = env.step(action)
+    expected = 0.02 * P.propeller_inertia * 4 * 20.0 / P.hover_time_constant / P.inertia[2]
+    assert info["truth"]["body_rates"][2] == pytest.approx(expected, rel=0.1)
+    env.close()

@@ -3,7 +3,8 @@
 The vehicle (`vsqp.py`): fuselage, a wing that skews from 0 (hover, along the fuselage) to 90 deg (forward
 flight), four hover rotors (two on the wing, turning with it), a pusher propeller driven by an electric
 motor (003 eq. 1-5, `pusher.py`), aileron, elevator and rudder. Forces and moments: the component model of
-001 eq. (6)-(30) with control surfaces, tail and damping (`quadplane_aero.py`).
+001 eq. (6)-(30) with control surfaces, tail and damping, plus the spinning propellers' spin-up reaction and
+gyroscopic moment (`quadplane_aero.py`, `rotor_inertia_moment`).
 
 Action: Box (9,) float32, clipped to its bounds (a wrong shape or a non-finite value raises ValueError):
   [0:4] hover-rotor speed commands in [0, 1] (omega = omega_min + u (omega_max - omega_min), rotor order of
@@ -33,9 +34,10 @@ from ..models.checks import Range
 from ..models.compiled import without_dispatch
 from ..models.faults import QUADPLANE_KINDS, FaultSchedule, parse_faults, resolve
 from ..models.geometry import quat_from_euler
-from ..models.pusher import THRUST, TORQUE, PusherMotor, pusher_step
-from ..models.quadplane_aero import QuadPlaneAero, aero_loads
-from ..models.rotors import EFFECTIVENESS, OMEGA, RotorSet, advance_speeds
+from ..models.pusher import INERTIA, SPIN_DIRECTION, THRUST, TORQUE, PusherMotor, pusher_step
+from ..models.pusher import OMEGA as PUSHER_OMEGA
+from ..models.quadplane_aero import QuadPlaneAero, aero_loads, rotor_inertia_moment
+from ..models.rotors import EFFECTIVENESS, OMEGA, OMEGA_DOT, SPIN, RotorSet, advance_speeds
 from ..models.sensors import (
     ACCEL_LIMIT,
     GYRO_LIMIT,
@@ -281,8 +283,9 @@ def physics_loads(rotors, controls, motion, aero, pusher, pusher_constants, para
     In place: the hover-rotor speeds (`advance_speeds` on `rotors`, toward `controls`[:4]) and angles
     (`advance_phase` on `angles`); the wing skew, toward its set-point at the skew rate limit, and the surfaces,
     after their servos' first-order lag (`motion`); the pusher (`pusher_step`, at the throttle, fed the forward
-    air speed). The air velocity is R^T (v - wind); the loads are `aero_loads`' (pusher included), rotated into
-    the world frame by BLAS's products, as numpy's. `params`: dt, the gains of `RotorSet.gains`, the skew step
+    air speed). The air velocity is R^T (v - wind); the loads are `aero_loads`' (pusher included) plus the
+    spinning propellers' moment (`rotor_inertia_moment`), rotated into the world frame by BLAS's products, as
+    numpy's. `params`: dt, the gains of `RotorSet.gains`, the skew step
     per physics step, the servos' lag factor. The attitude R comes as its 9 entries row by row (`_Rm`)."""
     R = np.array(R_rows).reshape(3, 3)
     dt = params[0]
@@ -294,8 +297,13 @@ def physics_loads(rotors, controls, motion, aero, pusher, pusher_constants, para
     p, q, r = rates
     loads = aero_loads(aero, u, v_air, w, p, q, r, motion[SKEW], motion[AILERON], motion[AILERON + 1],
                        motion[AILERON + 2], rotors[OMEGA], rotors[EFFECTIVENESS], pusher[THRUST], pusher[TORQUE])
+    skew = motion[SKEW]
+    spinning = rotor_inertia_moment(aero, rotors[OMEGA], rotors[OMEGA_DOT], rotors[SPIN], math.sin(skew),
+                                    math.cos(skew), p, q, r,
+                                    pusher_constants[INERTIA] * pusher_constants[SPIN_DIRECTION] * pusher[PUSHER_OMEGA])
     force, moment = np.empty(3), np.empty(3)
-    force[0], force[1], force[2], moment[0], moment[1], moment[2] = loads
+    force[0], force[1], force[2] = loads[0], loads[1], loads[2]
+    moment[0], moment[1], moment[2] = loads[3] + spinning[0], loads[4] + spinning[1], loads[5] + spinning[2]
     force_ned, moment_ned = np.dot(R, force), np.dot(R, moment)
     return (force_ned[0], force_ned[1], force_ned[2], moment_ned[0], moment_ned[1], moment_ned[2], u, v_air, w)
 

@@ -105,10 +105,15 @@ def pusher_step(state, c, throttle, axial_airspeed, dt):  # pragma: no cover (co
     w_new = min(max(w_new, 0.0), c[OMEGA_MAX])   # static friction holds it at 0; ESC speed limit
     omega_dot = (w_new - w) / dt
     n = w_new / TWO_PI
-    state[OMEGA] = w_new
-    state[CURRENT] = _electric_current(c, u, w_new)
-    state[THRUST] = thrust(c, n, v)
     q_new = aero_torque(c, theta_1, n, v) if w_new > 0.0 else 0.0
+    current = _electric_current(c, u, w_new)
+    if w_new == c[OMEGA_MAX]:
+        # The ESC's governor lowers the drive to hold its speed limit: the current 003 eq. (1) asks for there
+        # (at most the drive's own), not the one full throttle would push, whose torque would have nowhere to go.
+        current = min(current, i_0 + (c_v * w_new + q_new) / k_e)
+    state[OMEGA] = w_new
+    state[CURRENT] = current
+    state[THRUST] = thrust(c, n, v)
     state[TORQUE] = -c[SPIN_DIRECTION] * (q_new + inertia * omega_dot)
 
 

@@ -257,6 +257,27 @@ def hover_rotor_loads(c, u, v, w_air, p, q, r, sin_skew, cos_skew, omega, effect
 
 
 @njit(cache=True)
+def rotor_inertia_moment(c, omega, omega_dot, spin, sin_skew, cos_skew, p, q, r,
+                         pusher_momentum):  # pragma: no cover (compiled)
+    """Moment (FRD, N m) of the spinning propellers on the body, which PyBullet integrates without them (Euler's
+    equations of a body carrying rotors, as the quadrotor's `rotors.rotor_loads`): the reaction to each hover
+    rotor's spin-up, -I_p s_i (d omega_i/dt) a_i, and the gyroscopic moment -Omega x H of the angular momentum
+    H = sum I_p s_i omega_i a_i + `pusher_momentum` x_b, a_i the rotor's thrust axis at the skew
+    (`rotor_geometry`). `spin`: I_p s_i per rotor, 0 for a lost propeller (`RotorSet`'s SPIN row). The pusher's
+    own spin-up reaction is in its torque (`pusher.pusher_step`)."""
+    _, axes = rotor_geometry(sin_skew, cos_skew, c[FUSELAGE_ARM], c[WING_ARM], c[ROTOR_HEIGHT], c[ROTOR_TILT],
+                             c[YAW_SIGNS:YAW_SIGNS + 4])
+    hx, hy, hz = pusher_momentum, 0.0, 0.0
+    mx = my = mz = 0.0
+    for i in range(4):
+        ax, ay, az = axes[i]
+        h, reaction = spin[i] * omega[i], -spin[i] * omega_dot[i]
+        hx, hy, hz = hx + h * ax, hy + h * ay, hz + h * az
+        mx, my, mz = mx + reaction * ax, my + reaction * ay, mz + reaction * az
+    return mx - (q * hz - r * hy), my - (r * hx - p * hz), mz - (p * hy - q * hx)
+
+
+@njit(cache=True)
 def aero_loads(c, u, v, w, p, q, r, skew, aileron, elevator, rudder, omega, effectiveness, pusher_thrust,
                pusher_torque):  # pragma: no cover (compiled)
     """`aero_wrench` on floats (omega, effectiveness: arrays of the 4 hover rotors): (fx, fy, fz, l, m, n)."""

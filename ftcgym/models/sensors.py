@@ -232,8 +232,8 @@ class QuadPlaneSensorConfig(SensorConfig):
     rotor_speed_noise: float = 2.0        # rad/s, ESC telemetry of the hover motors, assumed
     pitot_noise: float = 0.3              # m/s, differential-pressure airspeed (MS4525-class at cruise), assumed
     pitot_time_constant: float = 0.05     # s, pneumatic lag of the pitot line, assumed
-    gnss_velocity_noise: float = 0.0064   # m/s, 001 Table 1: sigma_Vx^2 = 4.1e-5 (m/s)^2; V_z twice this, 0.0128
-                                          # (departs from 001's 1.4e-4, 0.0118: docs/vehicles.md)
+    gnss_velocity_noise: float = 0.0064   # m/s, 001 Table 1: sigma_Vx^2 = sigma_Vy^2 = 4.1e-5 (m/s)^2
+    gnss_vertical_velocity_noise: float = 0.0118   # m/s, 001 Table 1: sigma_Vz^2 = 1.4e-4 (m/s)^2
     gnss_hz: float = 10.0                 # Hz, GNSS velocity rate (u-blox class receiver), assumed
     skew_noise: float = 0.002             # rad, wing-angle encoder, assumed
     pusher_speed_noise: float = 0.71      # rad/s, 003 Sec. IV-B: omega noise covariance 5e-1
@@ -254,7 +254,7 @@ class QuadPlaneSensors:
         self._gnss_steps = max(1, int(round(1.0 / (config.gnss_hz * agent_dt))))
         c = config
         self._scales = np.array([c.pitot_noise, c.gnss_velocity_noise, c.gnss_velocity_noise,
-                                 2.0 * c.gnss_velocity_noise, c.skew_noise, c.pusher_speed_noise,
+                                 c.gnss_vertical_velocity_noise, c.skew_noise, c.pusher_speed_noise,
                                  c.pusher_current_noise])
 
     def reset(self, rng: np.random.Generator, airspeed: float = 0.0) -> None:
