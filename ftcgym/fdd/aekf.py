@@ -538,7 +538,7 @@ def _correct(x, P, y, r):  # pragma: no cover (compiled)
     for i in range(m):
         for j in range(m):
             S[i, j] = _measured(HP[j], i) + r[i] * (i == j)    # eq. (14)
-    Kt = _gain(S, HP)                                         # eq. (15): K^T = S^-1 H P
+    Kt = _gain(S, HP)                                         # eq. (13): K^T = S^-1 H P
     AP = P - np.dot(np.ascontiguousarray(Kt.T), HP)
     C = np.empty((N_X, m))                                    # K R - A P H^T
     for i in range(N_X):

@@ -17,7 +17,7 @@ lost its thrust" directly, on the same measurement model:
    Nikiforov 1993, ch. 2: the CUSUM g_k = max(0, g_k-1 + s_k) with s_k the log-likelihood ratio of sample k,
    which for a known change in a Gaussian mean is s_k = theta^T Sigma^-1 (e_k - theta / 2)):
        g_i,k = max(0, g_i,k-1 + theta_i^T Sigma^-1 (e_k - theta_i / 2))
-5. Motor-speed residual (000 Sec. III-A and Fig. 8: a motor that lost its propeller is unloaded and spins up):
+5. Motor-speed residual (ours; 000 Sec. III-A and Fig. 8 report that a motor that lost its propeller spins up):
    the ESC's speed one sample ahead of the last measured one under the first-order motor lag toward the command,
    w_hat_k = w_k-1 + (1 - exp(-dt / tau)) (c_k - w_k-1), c = omega_min + u (omega_max - omega_min); the
    residual m_i = w_i,k - w_hat_i,k rises when rotor i is unloaded. A one-sided CUSUM of m_i / `speed_sigma`
@@ -221,7 +221,7 @@ def _speed_test(speed, command, state, constants, started):  # pragma: no cover 
     last, h = state[LAST_SPEEDS], state[SPEED_CUSUM]
     omega_min, span, gain = constants[OMEGA_MIN], constants[OMEGA_SPAN], constants[MOTOR_GAIN]
     for i in range(min(command.size, 4) if started else 0):
-        predicted = last[i] + gain * (omega_min + command[i] * span - last[i])   # first-order lag (000 Sec. III-A)
+        predicted = last[i] + gain * (omega_min + command[i] * span - last[i])   # first-order motor lag (ours)
         step = (speed[i] - predicted) / constants[SPEED_SIGMA] - constants[SPEED_DRIFT]
         h[i] = _clip_cusum(h[i] + step)                                           # Page 1954
     for i in range(4):

@@ -103,7 +103,8 @@ def surface_coefficients(alpha, c, surface):  # pragma: no cover (compiled)
     """(C_L, C_D, attached weight, sin alpha) of a lifting surface at any alpha in [-pi, pi]; `surface` is where
     its coefficients start in `c` (C_L0, C_La, stall_pos, stall_neg, C_D0, k_induced, C_N90, blend).
 
-    Attached: 001 eq. (21) C_L = C_L0 + C_La alpha and eq. (23) C_D = C_D0 + C_L^2 / (pi A e).
+    Attached: 001 eq. (21) C_L = C_L0 + C_La alpha (printed C_L0 alpha + C_L0, an erratum: docs/references.md,
+    'Known errata', 5) and eq. (23) C_D = C_D0 + C_L^2 / (pi A e).
     Separated: flat plate with normal force C_N90 sin(alpha): C_L = C_N90 sin cos, C_D = C_D0 + C_N90 sin^2.
     The attached weight is 1 between the stall angles and falls smoothly to 0 outside them (two logistic
     sigmoids, expit(x) = (1 + tanh(x / 2)) / 2).
