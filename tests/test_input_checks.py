@@ -263,6 +263,17 @@ def test_a_detector_on_the_other_vehicle_says_which_it_runs_on(detector, env_id,
     env.close()
 
 
+def test_a_detector_moved_to_another_vehicle_or_rate_says_what_it_was_made_for():
+    from ftcgym.fdd import DetectorWrapper, wrap_with_detector
+    detector = wrap_with_detector("loe_kalman", gym.make("ftcgym/Quadrotor-v0")).detector
+    DetectorWrapper(gym.make("ftcgym/Quadrotor-v0"), detector)          # another env of the same vehicle: fine
+    with pytest.raises(ValueError, match=re.escape("detector 'loe_kalman' was made for bebop2 at 500 Hz; this env "
+                                                   "flies mueller2014 at 500 Hz")):
+        DetectorWrapper(gym.make("ftcgym/Quadrotor-v0", vehicle="mueller2014"), detector)
+    with pytest.raises(ValueError, match="made for bebop2 at 500 Hz; this env flies bebop2 at 250 Hz"):
+        DetectorWrapper(gym.make("ftcgym/Quadrotor-v0", agent_hz=250.0), detector)
+
+
 def test_a_detector_needs_the_time_in_info():
     from ftcgym.fdd import wrap_with_detector
     with pytest.raises(ValueError, match=r"reads info\['time'\], which info_level='none' leaves out"):

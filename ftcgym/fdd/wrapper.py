@@ -10,6 +10,8 @@ the entries of inner detector wrappers.
 """
 from __future__ import annotations
 
+import contextlib
+
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
@@ -29,6 +31,7 @@ class DetectorWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         if getattr(env.unwrapped, "info_level", "full") == "none":
             raise ValueError("DetectorWrapper: the detector reads info['time'], which info_level='none' leaves out; "
                              "make the env with info_level 'minimal' or 'full' (the default)")
+        _check_same_vehicle(detector, env)
         self.detector = detector
         self.prefix = f"fdd/{detector.name}/"
         extra = {self.prefix + field: spaces.Box(low, high, shape, np.float64)
@@ -62,3 +65,22 @@ class DetectorWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         self.detector.update(observation, self._time, self._command)
         prefix = self.prefix
         return {**observation, **{prefix + field: value for field, value in self.detector.outputs().items()}}
+
+
+def _check_same_vehicle(detector, env) -> None:
+    """A detector object moved to another env must find the vehicle set and agent rate it was made for: its model
+    (G, the mass, the rates) came from them, and on another vehicle it would run on the wrong one without a word.
+    The first wrapper records them on the detector (`_made_for`); a detector that takes no attribute is not
+    checked."""
+    try:
+        flown = (env.get_wrapper_attr("params").name, float(env.get_wrapper_attr("agent_hz")))
+    except AttributeError:           # not an ftcgym env: nothing to compare
+        return
+    made_for = getattr(detector, "_made_for", None)
+    if made_for is not None and made_for != flown:
+        raise ValueError(f"DetectorWrapper: detector {detector.name!r} was made for {made_for[0]} at "
+                         f"{made_for[1]:g} Hz; this env flies {flown[0]} at {flown[1]:g} Hz. Make one for it: "
+                         f"wrap_with_detector({detector.name!r}, env)")
+    with contextlib.suppress(AttributeError):
+        detector._made_for = flown
+
