@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 from matplotlib.figure import Figure  # a bare Figure renders with Agg: no pyplot, no global backend
+from matplotlib.lines import Line2D
 
 from ftcgym.benchmark import style
 from ftcgym.benchmark.journal import CONFIG_FILE, FAILURES_FILE, ROWS_FILE
@@ -78,7 +79,7 @@ def format_sets(summary: list[dict]) -> str:
 
 
 def plot_delays(path: Path, rows: list[dict], names: list[str], title: str) -> Path:
-    """000 Fig. 11: one box of detection delays (ms) per set; outliers beyond 1.5 IQR as red crosses."""
+    """000 Fig. 11: one box of detection delays (ms) per set; outliers beyond 1.5 IQR as crosses, with a key."""
     delays = [[1000.0 * row["detection_delay"] for row in rows
                if row["parameter_set"] == name and row["detection_delay"] is not None] for name in names]
     with style.paper():
@@ -89,6 +90,10 @@ def plot_delays(path: Path, rows: list[dict], names: list[str], title: str) -> P
                      flierprops={"marker": "+", "markeredgecolor": style.VERMILLION, "markersize": 4})
         axes.set_ylabel(style.label("detection_delay"))
         axes.set_title(f"{title}: detection delay per parameter set")
+        key = [Line2D([], [], color=style.BLUE, lw=1.2, label="median"),
+               Line2D([], [], color=style.BLACK, lw=0.8, label="quartiles; whiskers within 1.5 IQR"),
+               Line2D([], [], ls="", marker="+", markeredgecolor=style.VERMILLION, label="beyond the whiskers")]
+        axes.legend(handles=key, loc="upper left", ncol=3, fontsize="small")
         for label in axes.get_xticklabels():
             label.set(rotation=60, ha="right")
         axes.grid(axis="x", visible=False)
