@@ -52,8 +52,8 @@ def test_threshold_table_one_sided_and_round_trip(tmp_path):
 
 
 def test_ramp_row_is_recomputed_from_the_raw_residual_where_the_forward_airspeed_arms_it():
-    """White residual of the pitot's 0.3 m/s noise in forward flight: the ramp test's z stays far below 16; a
-    -2.5 m/s^2 ramp in one flight is a run above any level up to its peak; below 8 m/s the test does not run."""
+    """White residual of the pitot's 0.3 m/s noise in forward flight: the ramp test's z stays far below 17; a
+    -2.5 m/s^2 ramp in one flight is a run above any level up to its peak; below 14.5 m/s the test does not run."""
     rng = np.random.default_rng(1)
     raw = [rng.normal(0.0, 0.3, 25 * 600) for _ in range(2)]
     ramp = raw[1].copy()
@@ -61,10 +61,10 @@ def test_ramp_row_is_recomputed_from_the_raw_residual_where_the_forward_airspeed
     forward = [np.full(25 * 600, 18.0), np.full(25 * 600, 18.0)]
     rows = {r["criterion"]: r for r in study.threshold_table({"pitot_residual_raw": [raw[0], ramp],
                                                               "forward_airspeed": forward})}
-    assert rows["pitot ramp"]["threshold"] == 16.0 and rows["pitot ramp"]["runs_seen"] == 1
+    assert rows["pitot ramp"]["threshold"] == 17.0 and rows["pitot ramp"]["runs_seen"] == 1
     quiet = study.ramp_segments([raw[0]], [forward[0]])[0]
     assert 3.0 < quiet.max() < 8.0
-    assert not study.ramp_segments([ramp], [np.full(25 * 600, 5.0)])[0].any()
+    assert not study.ramp_segments([ramp], [np.full(25 * 600, 14.0)])[0].any()
     assert "pitot ramp" not in {r["criterion"] for r in study.threshold_table({"pitot_residual_raw": raw})}
 
 
