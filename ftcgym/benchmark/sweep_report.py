@@ -93,7 +93,7 @@ def plot_delays(path: Path, rows: list[dict], names: list[str], title: str) -> P
         key = [Line2D([], [], color=style.BLUE, lw=1.2, label="median"),
                Line2D([], [], color=style.BLACK, lw=0.8, label="quartiles; whiskers within 1.5 IQR"),
                Line2D([], [], ls="", marker="+", markeredgecolor=style.VERMILLION, label="beyond the whiskers")]
-        axes.legend(handles=key, loc="upper left", ncol=3, fontsize="small")
+        figure.legend(handles=key, loc="outside upper right", ncol=3, fontsize="small")
         for label in axes.get_xticklabels():
             label.set(rotation=60, ha="right")
         axes.grid(axis="x", visible=False)
