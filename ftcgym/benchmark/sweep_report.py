@@ -117,7 +117,8 @@ def detections_figure(summary: list[dict], title: str) -> Figure:
             (0.2, "false_alarms", "flights with a false alarm", style.SKY_BLUE))
     for offset, key, label, color in bars:
         drawn = axes.bar(x + offset, [row[key] for row in summary], 0.4, label=label, color=color)
-        axes.bar_label(drawn, fontsize=6)  # a zero is a result too: label it, as an empty axis says nothing
+        # a zero is a result too: label it in the bar's colour, as an empty axis says nothing
+        axes.bar_label(drawn, fontsize=6, color=color, fontweight="bold")
     axes.set_xticks(x, [row["parameter_set"] for row in summary], rotation=60, ha="right")
     axes.set_ylabel(style.label("flights"))
     faults, flights = summary[0]["fault_flights"], summary[0]["flights"]
