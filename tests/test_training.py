@@ -384,3 +384,28 @@ def test_evaluate_names_a_damaged_model_file(tmp_path, capsys, damage, message):
     assert main(["evaluate", str(folder), "--episodes", "1"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and message in err
+
+
+def crash_on_substep(env, k: int) -> None:
+    """Make the simulator under a training task report a crash on the k-th simulator step from now."""
+    inner, calls = env.env, []
+    step = inner.step
+
+    def crashing(action):
+        obs, reward, terminated, truncated, info = step(action)
+        calls.append(1)
+        if len(calls) == k:
+            info = {**info, "crashed": True}
+            return obs, -100.0, True, False, info
+        return obs, reward, terminated, truncated, info
+    inner.step = crashing
+
+
+@pytest.mark.parametrize("substep", [1, 2])
+def test_a_crash_gives_the_whole_penalty_whatever_the_substep(substep):
+    env = RotorLossRecoveryEnv(failed_rotor=2, **FAST_TASK)
+    env.reset(seed=0)
+    crash_on_substep(env, substep)
+    _, reward, terminated, truncated, info = env.step(np.zeros(4))
+    assert (reward, terminated, truncated) == (-100.0, True, False)   # was -100 / action_repeat, or mean with it
+    env.close()

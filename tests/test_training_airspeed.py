@@ -214,3 +214,15 @@ def test_shipped_learned_airspeed_loads_and_is_deterministic():
 def test_the_airspeed_task_checks_its_keywords_at_make(kwargs, message):
     with pytest.raises(ValueError, match=re.escape(message)):
         gym.make("ftcgym/AirspeedSource-v0", **kwargs)
+
+
+@pytest.mark.parametrize("substep", [1, 5])
+def test_a_crash_gives_the_whole_penalty_whatever_the_substep(substep):
+    from test_training import crash_on_substep
+    env = _fast_env()
+    env.reset(seed=0)
+    crash_on_substep(env, substep)
+    _, reward, terminated, truncated, info = env.step(np.array([0.0]))
+    assert (reward, terminated, truncated) == (-100.0, True, False)   # was -100 / the substeps run
+    env.close()
+

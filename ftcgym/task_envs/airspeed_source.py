@@ -17,7 +17,8 @@ residual r = pitot - EKF forward airspeed with the Table 2 alarm (Sec. 6.1) and 
 - Observation: Box(N_FEATURES,) float32 from `airspeed_features`: only what a flight computer has (pitot,
   EKF airspeed and residual outputs, alarms, GNSS ground speed, skew, mission phase, the previous w);
   never `info["truth"]`.
-- Reward per decision (the mean over its simulator steps), from the simulator's true airspeed V:
+- Reward per decision (the mean over its simulator steps; a decision that ends in a crash gives the whole -100),
+  from the simulator's true airspeed V:
   r = 1 - min(|a_fed - V|, 10) / 10 - 0.5 [|a_fed - V| > 2 m/s], and -100 on a crash. The first terms are
   QuadPlaneAutopilot-v0's reward; the 0.5 penalty outside 2 m/s is the benchmark's recovery tolerance
   (`benchmark.metrics.AIRSPEED_TOLERANCE`), so the reward ranks blends as the success metric does.
@@ -176,7 +177,8 @@ class AirspeedSourceEnv(gym.Env):
                 break
         terminated = bool(terminated)
         truncated = not terminated and (truncated or info["time"] >= self._end_time - 1e-9)
-        return self._features(), reward / n, terminated, truncated, self._task_info()
+        reward = -CRASH_PENALTY if info["crashed"] else reward / n     # a crash is not averaged away over the repeat
+        return self._features(), reward, terminated, truncated, self._task_info()
 
     def close(self):
         if self.env is not None:

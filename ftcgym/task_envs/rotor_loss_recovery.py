@@ -17,7 +17,8 @@ from the nominal controller at the `loe_kalman` alarm after a propeller loss.
 - Guidance: a shadow `SpinRecoveryController` (the `ftc-spin` recovery, engaged at the alarm on the rotor the
   detector isolated) sees every simulator step's observation, as it would flying; its outer loop's commanded
   axis and collective thrust are features. It never flies: the agent's action is what flies.
-- Reward per agent step (the mean over the repeated simulator steps), from the quadrotor's reward
+- Reward per agent step (the mean over the repeated simulator steps; a step that ends in a crash gives the whole
+  -100), from the quadrotor's reward
   (`ftcgym/envs/quadrotor.py` docstring: r = 1 - 0.5 min(|p - p_ref|, 4) - 0.5 (1 - cos tilt) -
   0.05 mean(u^2), and -100 on a crash) with two changes:
       r = 1 - 1.0 min(|h - h_ref|, 4) - 0.25 min(|p_ne - p_ne,ref|, 4) - 0.05 mean(u^2),  -100 on a crash.
@@ -219,8 +220,9 @@ class RotorLossRecoveryEnv(gym.Env):
         if action.shape != (4,) or not np.all(np.isfinite(action)):
             raise ValueError(f"action: must be 4 finite numbers, got {action!r}")
         command = to_motor_command(action)[self._order]
-        reward, info = 0.0, self._info
-        for _ in range(self.action_repeat):
+        reward, info, n = 0.0, self._info, 0
+        while n < self.action_repeat:
+            n += 1
             self._obs, _, terminated, truncated, info = self.env.step(command)
             self._info = info
             self._follow_guide()
@@ -229,7 +231,8 @@ class RotorLossRecoveryEnv(gym.Env):
                 break
         terminated = bool(info["crashed"])
         truncated = not terminated and (truncated or info["time"] >= self._end_time - 1e-9)
-        return self._features(), reward / self.action_repeat, terminated, truncated, self._task_info()
+        reward = -CRASH_PENALTY if terminated else reward / n     # a crash is not averaged away over the repeat
+        return self._features(), reward, terminated, truncated, self._task_info()
 
     def close(self):
         for env in self._envs.values():
