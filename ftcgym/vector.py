@@ -131,10 +131,16 @@ class ParallelVectorEnv(VectorEnv):
     def call(self, name, *args, **kwargs) -> tuple:
         """`getattr(env, name)` of every env, called with the arguments where it is callable; `name` may also
         be a picklable function, called as name(env, *args, **kwargs)."""
+        return self.call_at(None, name, *args, **kwargs)
+
+    def call_at(self, indices, name, *args, **kwargs) -> tuple:
+        """`call` on the envs of `indices` only (None: every env), their results in batch order; the others are
+        not touched (Stable-Baselines3's `env_method(..., indices=...)`)."""
         self._check_open("call")
+        only = None if indices is None else frozenset(int(k) for k in indices)
         for worker in self._workers:
-            worker.order(CALL, (name, args, kwargs))
-        results = self._own_part(self._own.call, name, args, kwargs)
+            worker.order(CALL, (name, args, kwargs, only))
+        results = self._own_part(self._own.call, name, args, kwargs, only)
         for answer in self._answers():
             results.extend(answer or [])
         return tuple(results)
@@ -150,9 +156,14 @@ class ParallelVectorEnv(VectorEnv):
             raise ValueError(f"ParallelVectorEnv.set_attr: {len(values)} values; accepted: one value or "
                              f"{self.num_envs}")
         for worker, share in zip(self._workers, self._shares[1:]):
-            worker.order(CALL, ("__setattr__", (name, [values[k] for k in share]), {}))
-        self._own_part(self._own.call, "__setattr__", (name, [values[k] for k in self._shares[0]]), {})
+            worker.order(CALL, ("__setattr__", (name, [values[k] for k in share]), {}, None))
+        self._own_part(self._own.call, "__setattr__", (name, [values[k] for k in self._shares[0]]), {}, None)
         self._answers()
+
+    def __del__(self):
+        """A vector env dropped without `close` still stops its workers (as Gymnasium's AsyncVectorEnv does)."""
+        if not getattr(self, "closed", True):
+            self.close()
 
     def close_extras(self, **kwargs) -> None:
         if self.closed:
@@ -409,14 +420,17 @@ class _Share:
         self._writers[k - self.indices.start](obs)
         shared.write_outcome(k, reward, terminated, truncated)
 
-    def call(self, name: str, args, kwargs) -> list:
+    def call(self, name: str, args, kwargs, only: frozenset | None = None) -> list:
+        """Call `name` on this share's envs, or on those whose batch index is in `only`."""
         if name == "__setattr__":
             attribute, values = args
             for env, value in zip(self.envs, values):
                 env.set_wrapper_attr(attribute, value)
             return [None] * len(self.envs)
         results = []
-        for env in self.envs:
+        for k, env in zip(self.indices, self.envs):
+            if only is not None and k not in only:
+                continue
             if callable(name):
                 results.append(name(env, *args, **kwargs))
                 continue
@@ -522,8 +536,7 @@ def _work(index: int, env_fns, share: range, shared: _Shared, pipe, autoreset_mo
                 seeds, options = pipe.recv()
                 infos = envs.reset(seeds, options, shared)
             else:
-                name, args, kwargs = pipe.recv()
-                answer("result", envs.call(name, args, kwargs))
+                answer("result", envs.call(*pipe.recv()))
                 infos = []
             if any(infos):
                 answer("infos", infos)

@@ -4,6 +4,7 @@ import contextlib
 import gc
 import os
 import re
+import warnings
 
 import gymnasium as gym
 import numpy as np
@@ -307,3 +308,21 @@ def test_a_built_in_policy_says_which_envs_it_flies(policy, make, message):
     from ftcgym.agents import make_policy
     with pytest.raises(ValueError, match=re.escape(message)):
         make_policy(policy, make())
+
+
+def test_a_step_after_the_end_warns_once_until_a_reset():
+    from ftcgym.envs.flight_env import StepAfterEndWarning
+    env = gym.make("ftcgym/Quadrotor-v0", max_episode_seconds=0.01)
+    env.reset(seed=0)
+    hover = np.full(4, 0.6, dtype=np.float32)
+    for _ in range(5):
+        _, _, terminated, truncated, _ = env.step(hover)
+    assert truncated and not terminated
+    with pytest.warns(StepAfterEndWarning, match="call reset"):
+        env.step(hover)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        env.step(hover)                      # once per episode
+        env.reset(seed=1)
+        env.step(hover)                      # a new episode: no warning
+    env.close()

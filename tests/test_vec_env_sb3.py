@@ -57,6 +57,24 @@ def test_matches_dummy_vec_env_step_for_step():
         parallel.close()
 
 
+def test_env_method_calls_only_the_chosen_envs():
+    dummy, parallel = DummyVecEnv([FACTORY] * 3), ParallelVecEnv([FACTORY] * 3, workers=2)
+    try:
+        for venv in (dummy, parallel):
+            venv.seed(5)
+            venv.reset()
+            for _ in range(10):
+                venv.step(np.full((3, 4), 0.7, dtype=np.float32))
+            venv.env_method("reset", indices=[2, 0])        # a worker's env and this process's, out of order
+        times = [venv.get_attr("time") for venv in (dummy, parallel)]
+        assert times[0] == times[1] == [0.0, 0.2, 0.0]      # env 1 was not reset (it was, as a side effect)
+        assert parallel.env_method("get_episode_rewards", indices=[1, 2]) == dummy.env_method(
+            "get_episode_rewards", indices=[1, 2])
+    finally:
+        dummy.close()
+        parallel.close()
+
+
 def test_ppo_learns_on_it(tmp_path):
     venv = ParallelVecEnv([FACTORY] * 2, workers=1)
     try:

@@ -187,3 +187,15 @@ def test_a_batch_of_the_wrong_shape_is_named_as_the_actions():
                                          r"not broadcast"):
         envs.step(np.zeros((2, 3)))
     envs.close()
+
+
+def test_a_dropped_vector_env_stops_its_workers():
+    import gc
+    vector_env = make_parallel(QUADROTOR, num_envs=2, workers=1)
+    vector_env.reset(seed=0)
+    processes = [worker.process for worker in vector_env._workers]
+    del vector_env
+    gc.collect()
+    for process in processes:
+        process.join(timeout=10)
+    assert [process.is_alive() for process in processes] == [False]

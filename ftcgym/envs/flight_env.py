@@ -29,6 +29,11 @@ class FaultAfterEndWarning(UserWarning):
     """A fault's onset is at or after the episode's end: it may never act."""
 
 
+class StepAfterEndWarning(UserWarning):
+    """`step` after the episode ended (terminated or truncated) without a `reset`: the simulation goes on, and a
+    crashed vehicle earns the crash penalty again at every step."""
+
+
 PHYSICS_HZ = Range(50.0, 20_000.0)   # Hz: coarser steps miss the motor lag, finer ones add cost, not accuracy
 
 
@@ -59,7 +64,7 @@ class FlightEnv(gym.Env):
                observation_format: str = "dict") -> None:
         """Validate the shared keyword arguments and build the task, wind and faults (`_open_world` follows,
         once the subclass has validated the rest, so a failed make holds no PyBullet client)."""
-        self.world = None
+        self.world, self._ended = None, False
         no_unknown(unknown or {}, KEYWORDS, "gym.make keyword")
         self.vehicle = vehicle
         self.params = self._configured_params = self._make_params(vehicle, vehicle_overrides)
@@ -186,6 +191,7 @@ class FlightEnv(gym.Env):
     def _start(self, position, attitude) -> None:
         """Place the body at rest and reset the clock (reset's first step)."""
         self.time, self._physics_steps = 0.0, 0
+        self._ended = False                       # terminated or truncated: `step` warns once until a reset
         self._faults_steady_until = -math.inf     # the faults are applied at the first physics step
         self.world.reset(position, attitude, np.zeros(3), np.zeros(3))
         self._crashed, self._termination = False, None
@@ -193,12 +199,18 @@ class FlightEnv(gym.Env):
     def _advance(self):
         """Run the physics substeps of one agent step; (observation, terminated, truncated)."""
         self._check_open("step")
+        if self._ended:
+            self._ended = None                    # warned: once per episode
+            warnings.warn("step() after the episode ended (terminated or truncated): call reset() first; the "
+                          "simulation goes on, a crash's penalty repeats", StepAfterEndWarning, stacklevel=3)
         self._run_physics(self.substeps)
         self._set_state()
         obs = self._observation()
         self._check_crash()
         terminated = self._crashed
         truncated = not terminated and self.time >= self.max_episode_seconds - 1e-9
+        if (terminated or truncated) and self._ended is False:
+            self._ended = True
         if self.render_mode == "human":
             self.render()
         return obs, terminated, truncated

@@ -69,8 +69,11 @@ class ParallelVecEnv(VecEnv):
         self.vector_env.set_attr(attr_name, [value if k in chosen else current[k] for k in range(self.num_envs)])
 
     def env_method(self, method_name: str, *method_args, indices=None, **method_kwargs) -> list:
-        results = self.vector_env.call(method_name, *method_args, **method_kwargs)
-        return [results[k] for k in self._get_indices(indices)]
+        """The method's results on the envs of `indices` only, in their order; the other envs are not called."""
+        chosen = list(self._get_indices(indices))
+        results = dict(zip(sorted(set(chosen)), self.vector_env.call_at(chosen, method_name, *method_args,
+                                                                        **method_kwargs)))
+        return [results[k] for k in chosen]
 
     def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
         results = self.vector_env.call(is_wrapped, wrapper_class)
