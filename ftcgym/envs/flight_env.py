@@ -64,7 +64,7 @@ class FlightEnv(gym.Env):
                observation_format: str = "dict") -> None:
         """Validate the shared keyword arguments and build the task, wind and faults (`_open_world` follows,
         once the subclass has validated the rest, so a failed make holds no PyBullet client)."""
-        self.world, self._ended = None, False
+        self.world, self._ended, self._warned_after_end = None, False, False
         no_unknown(unknown or {}, KEYWORDS, "gym.make keyword")
         self.vehicle = vehicle
         self.params = self._configured_params = self._make_params(vehicle, vehicle_overrides)
@@ -191,7 +191,7 @@ class FlightEnv(gym.Env):
     def _start(self, position, attitude) -> None:
         """Place the body at rest and reset the clock (reset's first step)."""
         self.time, self._physics_steps = 0.0, 0
-        self._ended = False                       # terminated or truncated: `step` warns once until a reset
+        self._ended = self._warned_after_end = False   # `step` after the end warns once per episode
         self._faults_steady_until = -math.inf     # the faults are applied at the first physics step
         self.world.reset(position, attitude, np.zeros(3), np.zeros(3))
         self._crashed, self._termination = False, None
@@ -200,20 +200,24 @@ class FlightEnv(gym.Env):
         """Run the physics substeps of one agent step; (observation, terminated, truncated)."""
         self._check_open("step")
         if self._ended:
-            self._ended = None                    # warned: once per episode
-            warnings.warn("step() after the episode ended (terminated or truncated): call reset() first; the "
-                          "simulation goes on, a crash's penalty repeats", StepAfterEndWarning, stacklevel=3)
+            self._warn_after_end()
         self._run_physics(self.substeps)
         self._set_state()
         obs = self._observation()
         self._check_crash()
         terminated = self._crashed
         truncated = not terminated and self.time >= self.max_episode_seconds - 1e-9
-        if (terminated or truncated) and self._ended is False:
-            self._ended = True
+        self._ended = terminated or truncated
         if self.render_mode == "human":
             self.render()
         return obs, terminated, truncated
+
+    def _warn_after_end(self) -> None:
+        """`StepAfterEndWarning`, once per episode (off the step's hot path)."""
+        if not self._warned_after_end:
+            self._warned_after_end = True
+            warnings.warn("step() after the episode ended (terminated or truncated): call reset() first; the "
+                          "simulation goes on, a crash's penalty repeats", StepAfterEndWarning, stacklevel=4)
 
     def _run_physics(self, steps: int) -> None:
         """`steps` physics steps: per step the wind, the vehicle's compiled loads on the state as PyBullet gives it
