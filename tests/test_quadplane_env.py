@@ -274,3 +274,22 @@ def test_a_seeded_reset_steps_the_same_whatever_ran_before():
     env.close()
     for key in steps[0]:
         np.testing.assert_array_equal(steps[0][key], steps[1][key], err_msg=key)
+
+
+def test_turbulence_that_follows_the_vehicle_takes_its_speed_through_the_mean_wind():
+    """`wind={"airspeed": "vehicle"}`: each agent step's Dryden V_a is the speed through the mean wind at the step's
+    start (`DrydenWind.follow`), so in cruise it is the cruise airspeed, not the 5 m/s of the wind."""
+    mean = np.array([3.0, 4.0, 0.0])
+    env = gym.make("ftcgym/QuadPlaneAutopilot-v0", max_episode_seconds=60.0,
+                   wind={"mean": mean.tolist(), "turbulence": "light", "airspeed": "vehicle"})
+    wind = env.unwrapped.plane.wind
+    rows, speed_before = [], [5.0]                 # V_a used, |v - mean| at the step's start, airspeed, cruising
+    def record(obs, info):
+        rows.append((wind.airspeed, speed_before[0], info["truth"]["airspeed"], info["mission"]["phase"] == "cruise"))
+        speed_before[0] = float(np.linalg.norm(info["truth"]["velocity"] - mean))
+    log = roll_out(env, make_policy("oracle-airspeed", env), seed=4, on_step=record)
+    used, expected, airspeed, cruise = np.array(rows).T
+    np.testing.assert_allclose(used[1:], np.maximum(np.round(expected[1:], 1), 1.0), atol=1e-9)
+    cruise = cruise.astype(bool)
+    assert cruise.sum() > 2000 and not score_episode(log)["crashed"]
+    assert abs(np.median(used[cruise]) - np.median(airspeed[cruise])) < 1.0 and np.median(used[cruise]) > 15.0

@@ -24,6 +24,19 @@ def test_mean_wind_is_drawn_per_seed_and_reaches_the_plane():
         RandomMeanWind(gym.make("ftcgym/QuadPlaneAutopilot-v0"), (5.0, 1.0))
 
 
+def test_the_drawn_wind_keeps_the_envs_turbulence_airspeed():
+    env = RandomMeanWind(gym.make("ftcgym/QuadPlaneAutopilot-v0", max_episode_seconds=1.0,
+                                  wind={"mean": [0.0, 0.0, 0.0], "turbulence": "light", "airspeed": "vehicle"}))
+    env.reset(seed=1)
+    assert env.unwrapped.plane.wind.follows_vehicle
+    env.close()
+    env = RandomMeanWind(gym.make("ftcgym/QuadPlaneAutopilot-v0", max_episode_seconds=1.0))
+    _, info = env.reset(seed=1)
+    wind = env.unwrapped.plane.wind
+    assert not wind.follows_vehicle and wind.airspeed == max(np.linalg.norm(info["mean_wind"]), 1.0)
+    env.close()
+
+
 def test_airdata_scenarios_and_isolation_targets():
     for name in ("qp-gnss-fault", "qp-rpm-sensor-fault", "qp-no-fault-long"):
         scenario = get_scenario(name)

@@ -184,3 +184,67 @@ def test_unknown_preset_lists_presets():
         DrydenWind.from_config({"turbulence": "gale"}, dt=0.002)
     for name in TURBULENCE_PRESETS:
         assert name in str(info.value)
+
+
+# `airspeed="vehicle"`: the filters per metre flown, V_a from the vehicle's speed through the mean wind.
+
+def followed(wind, speeds, steps_each):
+    """Winds of a `follow`ing wind: `steps_each` steps at each speed (the vehicle flies along north)."""
+    out = []
+    for speed in speeds:
+        wind.follow((speed + wind.mean[0], wind.mean[1], wind.mean[2]), steps_each)
+        out.extend(wind.advance() for _ in range(steps_each))
+    return np.array(out)
+
+
+@pytest.mark.parametrize("speed, mean", [(0.4, (0.0, 0.0, 0.0)), (5.0, (3.0, 4.0, 0.0)), (18.0, (0.0, 0.0, 0.0))])
+def test_following_a_steady_speed_gives_the_fixed_filters_winds(speed, mean):
+    fixed = DrydenWind(0.002, mean=mean, turbulence="light", airspeed=max(speed, 1.0))
+    follows = DrydenWind(0.002, mean=mean, turbulence="light", airspeed="vehicle")
+    fixed.reset(np.random.default_rng(3))
+    follows.reset(np.random.default_rng(3))
+    # agent steps of 5 physics steps across noise blocks; the speed through the mean wind stays `speed` (0.4: the
+    # 1 m/s floor)
+    winds = followed(follows, [speed] * 700, 5)
+    assert follows.airspeed == pytest.approx(max(speed, 1.0), abs=1e-12)
+    np.testing.assert_allclose(winds, run(fixed, 3500), rtol=0, atol=1e-11)   # the same winds to rounding
+
+
+def test_a_change_of_speed_keeps_sigma_and_scales_the_correlation_time():
+    wind = DrydenWind(DT, turbulence="light", airspeed="vehicle")
+    wind.reset(np.random.default_rng(2025))
+    for speed in (10.0, 40.0):
+        y = followed(wind, [speed] * 200, 1000)
+        np.testing.assert_allclose(y.std(axis=0) / wind.sigmas, 1.0, atol=0.10)
+        rho = autocorrelation(y[:, 0])
+        k = int(np.argmax(rho < math.exp(-1)))
+        assert abs(DT * k / (LIGHT_LENGTHS[0] / speed) - 1.0) < 0.25
+
+
+def test_the_gust_at_a_change_of_speed_has_sigma():
+    # The state per metre flown is stationary at any speed: no jump in variance when V_a goes from 1 to 30 m/s
+    # (the time-domain filter's state, kept across the change, would give sqrt(30) sigma). 4,000 resets: sd of
+    # the std ratio ~1.1%, tolerance 5%.
+    wind = DrydenWind(0.002, turbulence="light", airspeed="vehicle")
+    rng = np.random.default_rng(11)
+    after = []
+    for _ in range(4000):
+        wind.reset(rng)
+        followed(wind, [0.0], 1)
+        after.append(followed(wind, [30.0], 2)[-1])
+    np.testing.assert_allclose(np.std(after, axis=0) / LIGHT_SIGMAS, 1.0, atol=0.05)
+
+
+def test_follow_floors_rounds_and_belongs_to_a_following_wind():
+    wind = DrydenWind(0.002, mean=(0.3, 0.0, 0.0), turbulence="light", airspeed="vehicle")
+    assert wind.follows_vehicle and wind.airspeed == 1.0          # before any follow: |mean| at least 1 m/s
+    wind.reset(np.random.default_rng(0))
+    wind.follow((0.0, 0.0, 0.0), 1)
+    assert wind.airspeed == 1.0
+    wind.follow((18.34, 0.0, 4.0), 1)                              # |(18.04, 0, 4)| = 18.478
+    assert wind.airspeed == pytest.approx(18.5, abs=1e-12)
+    with pytest.raises(RuntimeError, match="vehicle"):
+        DrydenWind(0.002, turbulence="light").follow((0.0, 0.0, 0.0), 1)
+    with pytest.raises(ValueError, match="airspeed") as info:
+        DrydenWind(0.002, airspeed="cruise")
+    assert "'vehicle'" in str(info.value)

@@ -2,7 +2,8 @@
 
 The env's `wind` kwarg is one fixed mean; `qp-no-fault-long` wants many flights in different winds to count
 false alarms. `RandomMeanWind` passes each reset the option `wind` with a mean of uniform speed in
-`speed_range` m/s from a uniform direction (horizontal) and the given turbulence. The draw comes from a
+`speed_range` m/s from a uniform direction (horizontal), the given turbulence and the `airspeed` of the env's own
+`wind` kwarg (for example "vehicle"; `models/wind.py`), if it has one. The draw comes from a
 generator seeded by the reset seed (SeedSequence([seed, WIND_STREAM])), so an episode seed fixes its wind as
 it fixes everything else; without a seed it comes from the wrapper's own generator.
 """
@@ -25,6 +26,8 @@ class RandomMeanWind(gym.Wrapper):
         if not (0.0 <= low <= high):
             raise ValueError(f"speed_range: need 0 <= low <= high, got {speed_range!r}")
         self.speed_range, self.turbulence = (low, high), turbulence
+        configured = (env.spec.kwargs.get("wind") if env.spec is not None else None) or {}
+        self.airspeed = configured.get("airspeed")          # the turbulence's V_a, as gym.make was given it
         self.mean_wind = None
         self._rng = np.random.default_rng()
 
@@ -32,6 +35,8 @@ class RandomMeanWind(gym.Wrapper):
         rng = np.random.default_rng(np.random.SeedSequence([int(seed), WIND_STREAM])) if seed is not None else self._rng
         self.mean_wind = random_mean_wind(rng, self.speed_range)
         wind = {"mean": self.mean_wind, "turbulence": self.turbulence}
+        if self.airspeed is not None:
+            wind["airspeed"] = self.airspeed
         obs, info = self.env.reset(seed=seed, options={**(options or {}), "wind": wind})
         return obs, {**info, "mean_wind": list(self.mean_wind)}
 

@@ -231,6 +231,8 @@ class FlightEnv(gym.Env):
         loads, arguments, angles = self._bullet_loads, self._loads_arguments(), self.sensors.rotor_angles
         world, wind, rate = self.world, self.wind, self.physics_hz
         raw, count, steady_until = self._raw, self._physics_steps, self._faults_steady_until
+        if wind.follows_vehicle:           # the turbulence's V_a: the vehicle's speed through the mean wind
+            wind.follow(self._v, steps)
         for _ in range(steps):
             air = wind.advance()
             out = loads(*arguments, raw, air, angles)

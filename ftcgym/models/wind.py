@@ -21,7 +21,16 @@ the mean wind is ~horizontal-calm), v horizontal and 90 deg clockwise from u see
 when u is north), w down. This keeps the wind a function of time only, independent of attitude.
 
 V_a is the reference airspeed in the filters. Default: max(|mean wind|, 1 m/s): a hovering vehicle's
-airspeed is the wind speed, and the 1 m/s floor keeps the time constants L/V_a finite.
+airspeed is the wind speed, and the 1 m/s floor keeps the time constants L/V_a finite. A number fixes it.
+`airspeed="vehicle"` makes V_a the vehicle's speed through the mean wind, |v - mean| (floor 1 m/s, in steps of
+0.1 m/s), which the env gives once per agent step (`follow`): a quad-plane meets its cruise's turbulence
+bandwidth in cruise and its hover's in hover. A V_a that changes calls for the filters in space rather than
+time (Taylor's frozen turbulence, on which the Dryden spectra rest: MIL-F-8785C defines them per unit distance,
+Omega = omega / V_a): 004 eq. (14) with V_a = 1 and L in metres is the filter per metre flown, driven by white
+noise of unit intensity per metre, advanced by ds = V_a dt per step. Its state's stationary distribution does
+not depend on V_a, so a change of speed keeps sigma and changes only how fast the gusts pass. At a constant V_a
+it gives the time-domain filter's winds (the two state vectors differ by a constant diagonal scaling; equal to
+1e-13 m/s on the same draws, `tests/test_wind.py`).
 
 Randomness: only from the numpy Generator passed to reset(). Turbulence draws Gaussian noise in
 blocks of _BLOCK steps (bit-identical sequences for a given seed); a calm wind (all sigmas zero)
@@ -29,6 +38,7 @@ draws nothing. Give the wind its own child generator if other components share a
 """
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 
@@ -56,6 +66,9 @@ _TURBULENCE_KEYS = ("sigmas", "lengths")
 _BLOCK = 1024          # noise steps drawn per refill: amortises the rng/matmul call overhead
 _CHUNK = 64            # steps filtered per compiled call (`DrydenWind._turbulent_winds`)
 _CALM_HORIZONTAL = 1e-9  # m/s; below this the mean wind has no direction and u points north
+VEHICLE = "vehicle"      # `airspeed`: V_a follows the vehicle's speed through the mean wind
+_MIN_AIRSPEED = 1.0      # m/s, V_a's floor: keeps L/V_a finite
+_SPEED_STEP = 0.1        # m/s: a followed V_a is rounded to this, so each speed's filter is discretised once
 
 
 MAX_MEAN_WIND = 50.0                     # m/s, above a category-3 hurricane's sustained wind
@@ -152,9 +165,14 @@ class DrydenWind:
             raise ValueError(f"wind mean: its speed must be <= {MAX_MEAN_WIND:g} m/s, got {mean!r}")
         sigmas, lengths = _parse_turbulence(turbulence)
         self._sigmas, self._lengths = _readonly(sigmas), _readonly(lengths)
-        if airspeed is None:
-            airspeed = max(float(np.linalg.norm(self._mean)), 1.0)
+        self.follows_vehicle = isinstance(airspeed, str)
+        if self.follows_vehicle and airspeed != VEHICLE:
+            raise ValueError(f"wind airspeed: got {airspeed!r}; accepted: a number {_AIRSPEED} m/s, "
+                             f"{VEHICLE!r} or None (the mean wind's speed, at least {_MIN_AIRSPEED:g} m/s)")
+        if airspeed is None or self.follows_vehicle:
+            airspeed = max(float(np.linalg.norm(self._mean)), _MIN_AIRSPEED)
         self._airspeed = _positive(airspeed, "airspeed", _AIRSPEED)
+        self._chunk = _CHUNK
         self._calm = not np.any(self._sigmas > 0.0)
         self._rng = None
         self._stream = _not_reset()          # the winds step after step (`reset`)
@@ -164,6 +182,9 @@ class DrydenWind:
             self._build_filter()
 
     def _build_filter(self) -> None:
+        if self.follows_vehicle:
+            self._build_spatial_filter()
+            return
         a_mat, b_mat, c_mat = dryden_state_space(self._sigmas, self._lengths, self._airspeed)
         ad, qd = van_loan(a_mat, b_mat, self._dt)
         # Stationary covariance P = Ad P Ad^T + Qd: the initial state is drawn from it.
@@ -175,6 +196,38 @@ class DrydenWind:
         self._transition = np.vstack([ad, out @ ad])
         self._out = out
         self._state = np.zeros(5)
+
+    def _build_spatial_filter(self) -> None:
+        """The filter per metre flown (module docstring): 004 eq. (14) at V_a = 1 m/s, L in metres. Its
+        stationary covariance solves the continuous Lyapunov equation A P + P A^T + B B^T = 0, whatever V_a."""
+        a_mat, b_mat, c_mat = dryden_state_space(self._sigmas, self._lengths, 1.0)
+        stationary = scipy.linalg.solve_continuous_lyapunov(a_mat, -b_mat @ b_mat.T)
+        self._init_factor = _psd_factor(0.5 * (stationary + stationary.T))
+        self._out = turbulence_axes(self._mean) @ c_mat
+        self._state = np.zeros(5)
+        self._discretised = {}                # speed -> ([Ad; out Ad], F^T)
+        self._set_speed(self._airspeed)
+
+    def _set_speed(self, airspeed: float) -> None:
+        """Discretise the spatial filter over ds = airspeed dt (`_spatial_step`), once per speed."""
+        self._airspeed = airspeed
+        if airspeed not in self._discretised:
+            ad, noise_factor_t = _spatial_step(tuple(self._lengths.tolist()), airspeed * self._dt)
+            self._discretised[airspeed] = (np.vstack([ad, self._out @ ad]), noise_factor_t)
+        self._transition, self._noise_factor_t = self._discretised[airspeed]
+
+    def follow(self, velocity, steps: int) -> None:
+        """V_a for the next `steps` steps: the speed of `velocity` (the vehicle's, NED m/s) through the mean
+        wind, |velocity - mean|, at least 1 m/s, rounded to 0.1 m/s. Only for `airspeed="vehicle"`."""
+        if not self.follows_vehicle:
+            raise RuntimeError('DrydenWind.follow: this wind has a fixed airspeed; make it with airspeed="vehicle"')
+        self._chunk = steps
+        if self._calm:
+            return
+        speed = math.dist(velocity, self._mean_tuple)
+        rounded = _SPEED_STEP * round(min(max(speed, _MIN_AIRSPEED), _AIRSPEED.high) / _SPEED_STEP)
+        if rounded != self._airspeed:
+            self._set_speed(rounded)
 
     @classmethod
     def from_config(cls, config: dict | None, dt: float) -> DrydenWind:
@@ -197,7 +250,8 @@ class DrydenWind:
             return self._velocity.copy()
         self._state = self._init_factor @ rng.standard_normal(5)
         self._velocity = self._out @ self._state + self._mean
-        self._stream = self._turbulent_winds()   # winds drawn before this reset are discarded
+        # winds drawn before this reset are discarded
+        self._stream = self._followed_winds() if self.follows_vehicle else self._turbulent_winds()
         return self._velocity.copy()
 
     def _turbulent_winds(self):
@@ -211,6 +265,19 @@ class DrydenWind:
             for start in range(0, _BLOCK, _CHUNK):
                 winds = _dryden_block(self._transition, self._state, noise[start:start + _CHUNK])
                 yield from [tuple(row) for row in winds.tolist()]
+
+    def _followed_winds(self):
+        """The winds of `airspeed="vehicle"`: `_chunk` steps (one agent step's, `follow`) at a time, at the V_a
+        of the time (`_dryden_follow`). The unit noise is drawn `_BLOCK` steps at a time, as the fixed filter's."""
+        normals, used = np.empty((0, 5)), 0
+        while True:
+            steps = self._chunk
+            if used + steps > len(normals):
+                normals, used = np.vstack([normals[used:], self._rng.standard_normal((_BLOCK, 5))]), 0
+            winds = _dryden_follow(self._transition, self._noise_factor_t, self._out, self._mean, self._state,
+                                   normals[used:used + steps])
+            used += steps
+            yield from [tuple(row) for row in winds.tolist()]
 
     def step(self) -> np.ndarray:
         """Advance by dt; return the wind velocity (3,) NED m/s as a new array."""
@@ -240,11 +307,21 @@ class DrydenWind:
 
     @property
     def airspeed(self) -> float:
+        """V_a of the filters, m/s (with `airspeed="vehicle"`, the one of the latest `follow`)."""
         return self._airspeed
 
     @property
     def dt(self) -> float:
         return self._dt
+
+
+@functools.lru_cache(maxsize=4096)
+def _spatial_step(lengths: tuple, distance: float) -> tuple[np.ndarray, np.ndarray]:
+    """(Ad, F^T) of the filter per metre flown (module docstring) over `distance` metres: Van Loan's exact
+    discretisation, and F with F F^T = Qd. The sigmas enter only the output, so the lengths are the key."""
+    a_mat, b_mat, _ = dryden_state_space((0.0, 0.0, 0.0), lengths, 1.0)
+    ad, qd = van_loan(a_mat, b_mat, distance)
+    return ad, _psd_factor(qd).T
 
 
 def random_mean_wind(rng: np.random.Generator, speed_range) -> list[float]:
@@ -270,4 +347,17 @@ def _dryden_block(transition, state, noise):  # pragma: no cover (compiled)
         z += noise[k]
         state[:] = z[:5]
         winds[k] = z[5:]
+    return winds
+
+
+@njit(cache=True)
+def _dryden_follow(transition, noise_factor_t, out, mean, state, normals):  # pragma: no cover (compiled)
+    """`_dryden_block` for the filter per metre flown: the process noise w = F n of each unit normal row n is
+    made here, since F changes with V_a. BLAS's products."""
+    winds = np.empty((normals.shape[0], 3))
+    for k in range(normals.shape[0]):
+        noise = np.dot(normals[k], noise_factor_t)
+        z = np.dot(transition, state)
+        state[:] = z[:5] + noise
+        winds[k] = z[5:] + np.dot(out, noise) + mean
     return winds
