@@ -45,9 +45,7 @@ from ftcgym.fdd.replay import (
 )
 
 REPO = Path(__file__).resolve().parents[1]
-RFLYMAD = Path(os.environ.get("FTCGYM_RFLYMAD") or next(
-    (p / "data" / "rflymad" for p in (REPO / "shared", REPO.parent / "shared") if (p / "data" / "rflymad").is_dir()),
-    REPO / "shared" / "data" / "rflymad"))
+RFLYMAD = Path(os.environ.get("FTCGYM_RFLYMAD") or REPO / "data" / "rflymad")   # docs/howto/replay.md
 SIL, HIL = "TestCase_1_1000000000.ulg", "TestCase_2_2000000001.ulg"
 README_FAULT_TIMES = {SIL: 33.06, HIL: 19.16}
 needs_rflymad = pytest.mark.skipif(not (RFLYMAD / SIL).exists(), reason="RflyMAD logs not available")

@@ -23,6 +23,11 @@ from .base import UP
 
 @dataclass
 class ControllerGains:
+    """Gains and limits of `NominalController`'s loops, outer to inner (module docstring); each field's unit is at
+    its line. `gains_for` gives a vehicle's (`VEHICLE_GAINS`); pass your own to `NominalController(..., gains=...)`
+    (`dataclasses.replace` changes one). How they were chosen: docs/measurements.md, 'Tuning record:
+    agents/quadrotor_control.py'."""
+
     position: tuple = (1.6, 1.6, 2.0)       # 1/s^2, acceleration per metre of error
     velocity: tuple = (2.4, 2.4, 3.0)       # 1/s
     position_integral: tuple = (0.4, 0.4, 0.8)

@@ -76,5 +76,5 @@ def _run(args, argv: list[str]) -> int:
               f"{last['samples']} samples in {manifest['pretrain']['wall_time_s']:.1f} s, "
               f"{fit_summary(last)}{final}")
     print(f"{manifest['steps']} steps in {manifest['wall_time_s']:.1f} s ({manifest['steps_per_s'] or 0:.0f} steps/s, "
-          f"{config.n_envs} envs); wrote model.zip, manifest.json to {out}")
+          f"{config.n_envs} env{'s' if config.n_envs != 1 else ''}); wrote model.zip, manifest.json to {out}")
     return 0
