@@ -144,3 +144,40 @@ def test_a_plug_in_that_fails_is_one_line_naming_it(tmp_path, source, argument, 
     run = subprocess.run([str(FTCGYM), "bench", argument, reference, "--out", str(tmp_path / "out")],
                          env={**os.environ, "PYTHONPATH": str(tmp_path)}, capture_output=True, text=True)
     assert run.returncode == 2 and message in run.stderr and "Traceback" not in run.stderr
+
+
+TORCH_POLICY = '''
+import torch
+from ftcgym.agents import make_policy
+
+
+class TorchHover:
+    """The nominal controller beside a torch layer that runs every step, as a learned policy's network does."""
+
+    def __init__(self, env):
+        self.inner, self.layer = make_policy("nominal", env), torch.nn.Linear(512, 512)
+        with torch.no_grad():
+            self.layer(torch.ones(256, 512))       # torch's thread pool starts in the process that builds it
+
+    def reset(self, obs, info):
+        self.inner.reset(obs, info)
+
+    def act(self, obs, info):
+        with torch.no_grad():
+            self.layer(torch.ones(256, 512))
+        return self.inner.act(obs, info)
+'''
+
+
+def test_a_torch_policy_flies_in_worker_processes(tmp_path):
+    """The pool's workers are forked after `check_setup` built the policy; torch's threads do not survive a fork,
+    and without one torch thread per worker (`backends._exit_with_parent`) the first step waited for ever."""
+    pytest.importorskip("torch")
+    (tmp_path / "torch_policy.py").write_text(TORCH_POLICY)
+    run = subprocess.run([str(FTCGYM), "bench", "--scenario", "quad-hover", "--policy", "torch_policy:TorchHover",
+                          "--episodes", "2", "--workers", "2", "--env-kwargs", '{"max_episode_seconds": 1}',
+                          "--out", str(tmp_path / "out")], env={**os.environ, "PYTHONPATH": str(tmp_path)},
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    episodes = json.loads((tmp_path / "out" / "results.json").read_text())["episodes"]
+    assert len(episodes) == 2 and not any(e["crashed"] for e in episodes)

@@ -217,7 +217,13 @@ def _pool_round(work: _Work, todo: list[int], attempts: list[int], workers: int)
 
 def _exit_with_parent(parent: int) -> None:
     """Pool worker initializer: end this worker once its parent is gone. A driver killed outright (SIGKILL,
-    the OOM killer) cannot shut its pool down, and the workers would otherwise wait on its queue forever."""
+    the OOM killer) cannot shut its pool down, and the workers would otherwise wait on its queue forever.
+
+    Also one torch thread per worker, if the parent loaded torch (a learned policy built by `check_setup`):
+    a thread pool torch started before the fork does not exist in the child, whose first parallel operation
+    then waits on it for ever; and with a worker per core, more threads would only compete."""
+    if "torch" in sys.modules:
+        sys.modules["torch"].set_num_threads(1)
     def watch() -> None:
         while os.getppid() == parent:
             time.sleep(1.0)
