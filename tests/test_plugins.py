@@ -8,12 +8,13 @@ import sys
 from pathlib import Path
 
 import gymnasium as gym
+import numpy as np
 import pytest
 
 import ftcgym  # noqa: F401
 from ftcgym.agents import make_policy
 from ftcgym.benchmark.scenarios import get_scenario
-from ftcgym.fdd import wrap_with_detector
+from ftcgym.fdd import DetectorWrapper, wrap_with_detector
 
 PLUGIN = Path(__file__).parent / "plugin"
 FTCGYM = Path(sys.executable).parent / "ftcgym"
@@ -181,3 +182,60 @@ def test_a_torch_policy_flies_in_worker_processes(tmp_path):
     assert run.returncode == 0, run.stderr
     episodes = json.loads((tmp_path / "out" / "results.json").read_text())["episodes"]
     assert len(episodes) == 2 and not any(e["crashed"] for e in episodes)
+
+
+def _user_detector(monkeypatch, name="rotor_jump", outputs=None):
+    """The plug-in's RotorJumpDetector under another `name`, or with `outputs` replacing what it returns."""
+    monkeypatch.syspath_prepend(str(PLUGIN))
+    from ftcgym_plugin_example.detector import RotorJumpDetector
+    detector = RotorJumpDetector()
+    detector.name = name
+    if outputs is not None:
+        detector.outputs = lambda: outputs
+    return detector
+
+
+def test_the_benchmark_scores_the_scenarios_detector_not_one_its_wrappers_add(monkeypatch):
+    """`Scenario.wrappers` may add detectors (here the plug-in's, which alarms 26 ms before `loe_kalman` on this
+    episode); the scenario's own `loe_kalman` stays the one scored (the runner took the outermost one's before)."""
+    from ftcgym.benchmark.runner import run_episode
+    from ftcgym.benchmark.scenarios import Scenario
+
+    scenario = get_scenario("quad-rotor-loss-hover")
+    base = Scenario(name="user-rotor-loss", env_id=scenario.env_id, env_kwargs=scenario.env_kwargs,
+                    policies=("nominal",), detector="loe_kalman")
+    extra = _user_detector(monkeypatch, name="user_jump")
+    with_extra = Scenario(name="user-rotor-loss-extra", env_id=scenario.env_id, env_kwargs=scenario.env_kwargs,
+                          policies=("nominal",), detector="loe_kalman",
+                          wrappers=(lambda env: DetectorWrapper(env, extra),))
+    plain, wrapped = (run_episode(s, "nominal", seed=3) for s in (base, with_extra))
+    assert plain["alarm_time"] is not None and plain["detection_delay"] > 0.03
+    assert wrapped["alarm_time"] == plain["alarm_time"]
+
+
+@pytest.mark.parametrize("name, message", [
+    ("", "name must be a non-empty string without '/'"),
+    (None, "name must be a non-empty string without '/'"),
+    ("my/det", "name must be a non-empty string without '/'"),
+])
+def test_a_detector_name_that_cannot_key_info_is_refused(monkeypatch, name, message):
+    with pytest.raises(ValueError, match=message):
+        DetectorWrapper(gym.make("ftcgym/Quadrotor-v0"), _user_detector(monkeypatch, name=name))
+
+
+def test_a_second_detector_of_the_same_name_is_refused(monkeypatch):
+    """Its other output fields would not clash in the observation, but its status would overwrite the first's."""
+    env = wrap_with_detector("loe_kalman", gym.make("ftcgym/Quadrotor-v0"))
+    with pytest.raises(ValueError, match=r"already has a detector named 'loe_kalman'; a second would overwrite"):
+        DetectorWrapper(env, _user_detector(monkeypatch, name="loe_kalman"))
+
+
+@pytest.mark.parametrize("outputs, message", [
+    ({"excess": np.zeros(3)}, r"outputs\(\)\['excess'\] has shape \(3,\); its output_fields declare \(4,\)"),
+    ({"exces": np.zeros(4)}, r"outputs\(\) gave fields \['exces'\]; its output_fields declare \['excess'\]"),
+    ({"excess": np.full(4, np.nan)}, r"outputs\(\)\['excess'\] is not finite"),
+])
+def test_outputs_that_break_the_declared_fields_are_named_at_the_first_step(monkeypatch, outputs, message):
+    env = DetectorWrapper(gym.make("ftcgym/Quadrotor-v0"), _user_detector(monkeypatch, name="wrong", outputs=outputs))
+    with pytest.raises(ValueError, match=r"detector 'wrong': " + message):
+        env.reset(seed=0)

@@ -249,13 +249,21 @@ def event_window(log: EpisodeLog, before: float = EVENT_BEFORE_S, after: float =
 def make_env(scenario: Scenario, env_overrides: dict | None = None) -> gym.Env:
     """The scenario's env, its kwargs updated (top-level keys) by `env_overrides`, wrapped with the
     scenario's detector, then with its further wrappers."""
+    return make_scored_env(scenario, env_overrides)[0]
+
+
+def make_scored_env(scenario: Scenario, env_overrides: dict | None = None) -> tuple[gym.Env, str | None]:
+    """`make_env`'s env and the `info["fdd"]` key the benchmark scores: that of the scenario's own detector (its
+    `name`), whatever detectors the scenario's `wrappers` add around it; None without one."""
     kwargs = copy.deepcopy({**scenario.env_kwargs, **(env_overrides or {})})
     env = gym.make(scenario.env_id, **kwargs)
+    scored = None
     if scenario.detector is not None:
         env = wrap_with_detector(scenario.detector, env, **scenario.detector_kwargs)
+        scored = published_detector(env, scenario.detector)
     for wrap in scenario.wrappers:
         env = wrap(env)
-    return env
+    return env, scored
 
 
 def check_setup(scenario: Scenario, env_overrides: dict | None = None, policies=()) -> None:
@@ -297,9 +305,9 @@ def run_episode(scenario: Scenario | str, policy_name: str, seed: int,
     """One episode: its row of EPISODE_FIELDS (JSON-ready values) plus "trajectory" (arrays). `policy_name`
     is any name `ftcgym.agents.make_policy` takes; the row carries it as given."""
     scenario = get_scenario(scenario) if isinstance(scenario, str) else scenario
-    env = make_env(scenario, env_overrides)
+    env, detector = make_scored_env(scenario, env_overrides)
     try:
-        log = roll_out(env, make_policy(policy_name, env), seed, published_detector(env, scenario.detector))
+        log = roll_out(env, make_policy(policy_name, env), seed, detector)
     finally:
         env.close()
     values = {"scenario": scenario.name, "policy": policy_name, "seed": int(seed), **score_episode(log)}

@@ -25,10 +25,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ftcgym.agents import make_policy
-from ftcgym.benchmark.runner import make_env, roll_out, score_episode
+from ftcgym.benchmark.runner import make_env, make_scored_env, roll_out, score_episode
 from ftcgym.benchmark.scenarios import Scenario, get_scenario
 from ftcgym.benchmark.style import ROTORS, fault_title
-from ftcgym.fdd import published_detector
 
 BEFORE_S, AFTER_S = 1.0, 3.0     # default window around the fault onset
 FPS = 30
@@ -219,9 +218,8 @@ def film_episode(scenario: Scenario | str, policy_name: str, seed: int, out: str
                          f"slowmo={slowmo}, before={before}, after={after}")
     scenario = get_scenario(scenario) if isinstance(scenario, str) else scenario
     env_overrides = dict(env_overrides or {})
-    env = make_env(scenario, env_overrides)
+    env, detector = make_scored_env(scenario, env_overrides)
     try:
-        detector = published_detector(env, scenario.detector)
         log = roll_out(env, make_policy(policy_name, env), seed, detector)
     finally:
         env.close()

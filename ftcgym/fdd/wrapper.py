@@ -4,6 +4,10 @@ Like a Gymnasium `ObservationWrapper`, it adds keys to the observation (`fdd/<na
 them in `observation_space`; it also adds `info["fdd"][<name>]` (alarm, alarm_time, isolated, estimates).
 It reads the observation by key and `info["time"]` only, never simulator internals.
 
+The detector's `name` must be a non-empty string without "/", used by no other detector wrapper of the env; its
+`outputs()` are checked against `output_fields` (keys, shapes, finite values) on the first observation after
+each reset, which names the detector and the field, and not on later steps (their cost).
+
 Per step it returns a fresh observation dict (the env's arrays, not copied, plus the detector's outputs) and
 the env's own `info` (envs return a fresh one per step) with `info["fdd"]` replaced by a new dict that keeps
 the entries of inner detector wrappers.
@@ -31,6 +35,7 @@ class DetectorWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         if getattr(env.unwrapped, "info_level", "full") == "none":
             raise ValueError("DetectorWrapper: the detector reads info['time'], which info_level='none' leaves out; "
                              "make the env with info_level 'minimal' or 'full' (the default)")
+        _check_name(detector, env)
         _check_same_vehicle(detector, env)
         self.detector = detector
         self.prefix = f"fdd/{detector.name}/"
@@ -42,10 +47,12 @@ class DetectorWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         self.observation_space = spaces.Dict({**env.observation_space.spaces, **extra})
         self._command = None
         self._time = 0.0
+        self._check_outputs = True
 
     def reset(self, *, seed=None, options=None):
         self.detector.reset()
         self._command = None
+        self._check_outputs = True
         obs, info = self.env.reset(seed=seed, options=options)
         return self._publish(obs, info)
 
@@ -63,8 +70,43 @@ class DetectorWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
 
     def observation(self, observation: dict) -> dict:
         self.detector.update(observation, self._time, self._command)
+        outputs = self.detector.outputs()
+        if self._check_outputs:
+            self._check_outputs = False
+            _check_outputs(self.detector, outputs)
         prefix = self.prefix
-        return {**observation, **{prefix + field: value for field, value in self.detector.outputs().items()}}
+        return {**observation, **{prefix + field: value for field, value in outputs.items()}}
+
+
+def _check_name(detector, env) -> None:
+    """The name keys the observation (`fdd/<name>/<field>`) and `info["fdd"]`: a string, and one wrapper's."""
+    name = getattr(detector, "name", None)
+    if not isinstance(name, str) or not name or "/" in name:
+        raise ValueError(f"DetectorWrapper: the detector's name must be a non-empty string without '/' (it keys "
+                         f"info['fdd'] and the observation's fdd/<name>/ fields), got {name!r}")
+    inner = env
+    while isinstance(inner, gym.Wrapper):
+        if isinstance(inner, DetectorWrapper) and inner.detector.name == name:
+            raise ValueError(f"DetectorWrapper: the env already has a detector named {name!r}; a second would "
+                             f"overwrite its info['fdd'][{name!r}]: give one of them another name")
+        inner = inner.env
+
+
+def _check_outputs(detector, outputs) -> None:
+    """`outputs()` against `output_fields`: the same fields, each of its declared shape, finite."""
+    declared = detector.output_fields
+    if not isinstance(outputs, dict) or set(outputs) != set(declared):
+        got = sorted(outputs) if isinstance(outputs, dict) else type(outputs).__name__
+        raise ValueError(f"detector {detector.name!r}: outputs() gave fields {got}; its output_fields declare "
+                         f"{sorted(declared)}")
+    for field, (_, _, shape) in declared.items():
+        value = np.asarray(outputs[field])
+        if value.shape != tuple(shape):
+            raise ValueError(f"detector {detector.name!r}: outputs()[{field!r}] has shape {value.shape}; its "
+                             f"output_fields declare {tuple(shape)}")
+        if not np.all(np.isfinite(value)):
+            raise ValueError(f"detector {detector.name!r}: outputs()[{field!r}] is not finite ({value!r}); an "
+                             f"observation must hold numbers")
 
 
 def _check_same_vehicle(detector, env) -> None:

@@ -9,9 +9,8 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from ftcgym.benchmark import metrics
-from ftcgym.benchmark.runner import _native, episode_seed, make_env, roll_out, score_episode
+from ftcgym.benchmark.runner import _native, episode_seed, make_scored_env, roll_out, score_episode
 from ftcgym.benchmark.scenarios import Scenario, get_scenario
-from ftcgym.fdd import published_detector
 
 DEFAULT_SCENARIO = "quad-rotor-loss-hover"
 POLICY_NAME = "learned"    # a model of a task without a benchmark name (`policy.POLICY_NAMES`)
@@ -23,10 +22,10 @@ def score_policy(make_policy: Callable, scenario: Scenario | str = DEFAULT_SCENA
     scenario = get_scenario(scenario) if isinstance(scenario, str) else scenario
     rows = []
     for index in range(episodes or scenario.episodes):
-        env = make_env(scenario, env_overrides)
+        env, detector = make_scored_env(scenario, env_overrides)
         try:
             episode = episode_seed(seed, index)
-            log = roll_out(env, make_policy(env), episode, published_detector(env, scenario.detector))
+            log = roll_out(env, make_policy(env), episode, detector)
             values = {"scenario": scenario.name, "policy": policy_name, "seed": int(episode), **score_episode(log)}
         finally:
             env.close()
