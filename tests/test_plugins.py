@@ -48,6 +48,10 @@ def test_bench_flies_and_scores_a_module_policy_and_detector_class(tmp_path):
     [scenario] = results["config"]["scenarios"]
     assert scenario["name"] == "ftcgym_plugin_example.scenario:SCENARIO"
     assert scenario["detector"] == "ftcgym_plugin_example.detector:RotorJumpDetector"
+    report = (tmp_path / "out" / "report.md").read_text()     # figures named without the ':' a viewer takes for a URL
+    assert (tmp_path / "out" / "ftcgym_plugin_example.scenario_SCENARIO.png").exists()
+    assert "(ftcgym_plugin_example.scenario_SCENARIO.png)" in report
+    assert "detector ftcgym_plugin_example.detector:RotorJumpDetector)" in report
 
 
 def test_an_installed_package_plugs_in_by_entry_point(tmp_path):

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -102,15 +103,21 @@ def write_files(place, results: dict, episodes: list[dict]) -> list[Path]:
     paths = [write_json(place("results.json"), results), write_csv(place("episodes.csv"), results["episodes"])]
     plots = []
     for name in dict.fromkeys(episode["scenario"] for episode in episodes):
-        of_scenario = _of_scenario(episodes, name)
-        plots.append(plot_scenario(place(f"{name}.png"), name, of_scenario))
+        of_scenario, stem = _of_scenario(episodes, name), file_stem(name)
+        plots.append(plot_scenario(place(f"{stem}.png"), name, of_scenario))
         shown = event_episodes(of_scenario)
         if shown:
-            plots.append(plot_event(place(f"{name}-event.png"), shown, fault_rate(results["config"], name)))
+            plots.append(plot_event(place(f"{stem}-event.png"), shown, fault_rate(results["config"], name)))
         if any(e["fault_onset"] is not None for e in of_scenario):
-            plots.append(plot_latencies(place(f"{name}-latency.png"), name, of_scenario))
+            plots.append(plot_latencies(place(f"{stem}-latency.png"), name, of_scenario))
     paths.append(write_markdown(place("report.md"), results["summary"], results["config"], plots))
     return paths + plots + [plot.with_suffix(f".{style.VECTOR_FORMAT}") for plot in plots]
+
+
+def file_stem(scenario: str) -> str:
+    """A scenario's name as a file name: a MODULE:ATTR reference's ':' (a URL scheme to a Markdown viewer, and no
+    file name on Windows) and anything but letters, digits, '.', '_' and '-' become '_'."""
+    return re.sub(r"[^A-Za-z0-9._-]", "_", scenario)
 
 
 def write_json(path: Path, results: dict) -> Path:
@@ -133,7 +140,8 @@ def _count(n: int, one: str, many: str) -> str:
 
 def write_markdown(path: Path, summary: list[dict], config: dict, plots: list[Path]) -> Path:
     scenario_lines = [f"- `{s['name']}` ({s['env_id']}, policies {', '.join(s['policies'])}, "
-                      f"{s['episodes']} episodes): {s['description']}" for s in config["scenarios"]]
+                      f"{s['episodes']} episodes, detector {s['detector'] or 'none'}): {s['description']}"
+                      for s in config["scenarios"]]
     plot_lines = [f"![{plot.stem}]({plot.name})" for plot in plots]
     vector = style.VECTOR_FORMAT.upper()
     text = "\n\n".join([
