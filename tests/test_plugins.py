@@ -243,3 +243,25 @@ def test_outputs_that_break_the_declared_fields_are_named_at_the_first_step(monk
     env = DetectorWrapper(gym.make("ftcgym/Quadrotor-v0"), _user_detector(monkeypatch, name="wrong", outputs=outputs))
     with pytest.raises(ValueError, match=r"detector 'wrong': " + message):
         env.reset(seed=0)
+
+
+@pytest.mark.parametrize("fields, message", [
+    ({"policies": "nominal"}, r"policies must be a tuple of policy names, got 'nominal'"),
+    ({"episodes": 0}, r"episodes must be a whole number >= 1, got 0"),
+    ({"name": ""}, r"name must be a non-empty string"),
+    ({"detector": ""}, r"detector must be a non-empty string"),
+    ({"env_kwargs": None}, r"env_kwargs must be a dict"),
+    ({"fault_wrappers": ("not callable",)}, r"fault_wrappers must be a tuple of callables"),
+])
+def test_a_malformed_scenario_names_its_field(fields, message):
+    from ftcgym.benchmark.scenarios import Scenario
+    with pytest.raises(ValueError, match=message):
+        Scenario(**{"name": "mine", "env_id": "ftcgym/Quadrotor-v0", **fields})
+
+
+def test_register_refuses_a_reference_like_or_taken_name():
+    from ftcgym.benchmark.scenarios import Scenario, register
+    with pytest.raises(ValueError, match=r"a registered name has no ':'"):
+        register(Scenario(name="mine:hover", env_id="ftcgym/Quadrotor-v0"))
+    with pytest.raises(ValueError, match=r"'quad-hover' is already registered; give yours another name"):
+        register(Scenario(name="quad-hover", env_id="ftcgym/Quadrotor-v0"))

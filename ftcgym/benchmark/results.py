@@ -43,9 +43,17 @@ def run_config(command: str, version: str, scenarios: list[Scenario], *, seed: i
             "detector": scenario.detector,
             "detector_kwargs": scenario.detector_kwargs,
             "description": scenario.description,
+            "fault_wrappers": [_qualified_name(wrap) for wrap in scenario.fault_wrappers],
+            "wrappers": [_qualified_name(wrap) for wrap in scenario.wrappers],
         } for scenario in scenarios],
         "wall_time_s": wall_time_s,
     }
+
+
+def _qualified_name(function) -> str:
+    """MODULE:NAME of a wrapper callable (its repr where it has none), so results.json says what wrapped the env."""
+    module, name = getattr(function, "__module__", None), getattr(function, "__qualname__", None)
+    return f"{module}:{name}" if module and name else repr(function)
 
 
 def results_document(episodes: list[dict], config: dict) -> dict:

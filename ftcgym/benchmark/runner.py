@@ -247,8 +247,8 @@ def event_window(log: EpisodeLog, before: float = EVENT_BEFORE_S, after: float =
 
 
 def make_env(scenario: Scenario, env_overrides: dict | None = None) -> gym.Env:
-    """The scenario's env, its kwargs updated (top-level keys) by `env_overrides`, wrapped with the
-    scenario's detector, then with its further wrappers."""
+    """The scenario's env, its kwargs updated (top-level keys) by `env_overrides`, wrapped with the scenario's
+    fault wrappers, its detector, then its further wrappers."""
     return make_scored_env(scenario, env_overrides)[0]
 
 
@@ -257,6 +257,8 @@ def make_scored_env(scenario: Scenario, env_overrides: dict | None = None) -> tu
     `name`), whatever detectors the scenario's `wrappers` add around it; None without one."""
     kwargs = copy.deepcopy({**scenario.env_kwargs, **(env_overrides or {})})
     env = gym.make(scenario.env_id, **kwargs)
+    for wrap in scenario.fault_wrappers:
+        env = wrap(env)
     scored = None
     if scenario.detector is not None:
         env = wrap_with_detector(scenario.detector, env, **scenario.detector_kwargs)

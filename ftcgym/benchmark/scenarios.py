@@ -32,9 +32,11 @@ class Scenario:
     """One benchmark scenario.
 
     `detector` names the detector (`ftcgym.fdd.DETECTORS`) the env is wrapped with, built with
-    `detector_kwargs`, and whose `info["fdd"]` alarm is scored (None: no detection metrics). `wrappers`
-    are further callables env -> env applied after `gym.make` (module-level, so episodes can run in
-    worker processes). `default` scenarios are those `ftcgym bench` runs when no `--scenario` is given.
+    `detector_kwargs`, and whose `info["fdd"]` alarm is scored (None: no detection metrics). `fault_wrappers`
+    are callables env -> env applied right after `gym.make`, under the detector, which reads what they corrupt:
+    a fault of the user's, reported in `info["fault"]` as the env reports its own, is scored as one of the env's.
+    `wrappers` are applied after the detector. Both module-level, so episodes can run in worker processes.
+    `default` scenarios are those `ftcgym bench` runs when no `--scenario` is given.
     """
 
     name: str
@@ -47,6 +49,27 @@ class Scenario:
     description: str = ""
     default: bool = False
     wrappers: tuple[Callable, ...] = ()
+    fault_wrappers: tuple[Callable, ...] = ()
+
+    def __post_init__(self) -> None:
+        """Each field of the kind it must be, named where it is not (a str of policies would fly 'n', 'o', ...)."""
+        where = f"Scenario {self.name!r}"
+        if not isinstance(self.name, str) or not self.name:
+            raise ValueError(f"Scenario: name must be a non-empty string, got {self.name!r}")
+        for name in ("env_id",) + (("detector",) if self.detector is not None else ()):
+            if not isinstance(getattr(self, name), str) or not getattr(self, name):
+                raise ValueError(f"{where}: {name} must be a non-empty string, got {getattr(self, name)!r}")
+        for name in ("env_kwargs", "detector_kwargs"):
+            if not isinstance(getattr(self, name), dict):
+                raise ValueError(f"{where}: {name} must be a dict, got {getattr(self, name)!r}")
+        if isinstance(self.policies, str) or not all(isinstance(p, str) and p for p in self.policies):
+            raise ValueError(f"{where}: policies must be a tuple of policy names, got {self.policies!r}")
+        if isinstance(self.episodes, bool) or not isinstance(self.episodes, int) or self.episodes < 1:
+            raise ValueError(f"{where}: episodes must be a whole number >= 1, got {self.episodes!r}")
+        for name in ("wrappers", "fault_wrappers"):
+            if not all(callable(wrap) for wrap in getattr(self, name)):
+                raise ValueError(f"{where}: {name} must be a tuple of callables env -> env, got "
+                                 f"{getattr(self, name)!r}")
 
 
 SCENARIOS: dict[str, Scenario] = {}
@@ -55,9 +78,13 @@ PLUG_INS = Registry("scenario", "ftcgym.scenarios", {})
 
 
 def register(scenario: Scenario) -> Scenario:
-    """Add `scenario` to the catalogue; a name can be registered once."""
+    """Add `scenario` to the catalogue of this process; a name can be registered once, and without ':' (which
+    marks a MODULE:ATTR reference)."""
     if scenario.name in SCENARIOS:
-        raise ValueError(f"scenario {scenario.name!r} is already registered")
+        raise ValueError(f"scenario {scenario.name!r} is already registered; give yours another name")
+    if ":" in scenario.name:
+        raise ValueError(f"scenario {scenario.name!r}: a registered name has no ':' (MODULE:ATTR names a "
+                         f"scenario in a module without registering it)")
     SCENARIOS[scenario.name] = scenario
     return scenario
 
