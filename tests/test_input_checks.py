@@ -201,7 +201,7 @@ def test_actions_of_any_real_dtype_fly_as_their_float64_values(dtype):
     assert all(np.array_equal(observations[0][key], observations[1][key]) for key in observations[1])
 
 
-@pytest.mark.parametrize("env_id", [Q, AUTOPILOT])
+@pytest.mark.parametrize("env_id", [Q, AUTOPILOT, "ftcgym/RotorLossRecovery-v0", "ftcgym/AirspeedSource-v0"])
 def test_step_and_reset_after_close_say_the_env_is_closed(env_id):
     env = gym.make(env_id)
     env.reset(seed=0)

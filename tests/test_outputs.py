@@ -88,6 +88,14 @@ def test_the_lock_is_released_after_a_run_and_nests_within_one(tmp_path):
     assert outer.path == tmp_path and (tmp_path / LOCK_FILE).exists()   # kept: deleting it would race
 
 
+def test_a_relative_folder_is_released_after_the_block_changed_directory(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    with OutputFolder("out"):
+        monkeypatch.chdir("/")                       # the lock's key was looked up anew: KeyError, lock kept
+    with open(tmp_path / "out" / LOCK_FILE) as file:
+        fcntl.flock(file, fcntl.LOCK_EX | fcntl.LOCK_NB)
+
+
 def publish_run(folder, files: dict, also=()):
     with OutputFolder(folder) as run:
         for name, text in files.items():

@@ -107,3 +107,15 @@ def test_a_refused_reset_leaves_the_episode_as_it_was():
     assert all(np.array_equal(obs[key], twin_obs[key]) for key in obs)
     env.close()
     twin.close()
+
+
+@pytest.mark.parametrize("env_id", ["ftcgym/Quadrotor-v0", "ftcgym/QuadPlane-v0", "ftcgym/RotorLossRecovery-v0"])
+def test_an_env_whose_first_reset_was_refused_steps_after_a_good_one(env_id):
+    """Gymnasium's passive env checker (off for ftcgym's ids) broke every later step after a refused first reset."""
+    env = gym.make(env_id)
+    with pytest.raises(ValueError):
+        env.reset(seed=0, options={"wind": {"mean": [0.0, float("nan"), 0.0]}})
+    env.reset(seed=0)
+    obs, reward, *_ = env.step(env.action_space.sample())
+    assert np.isfinite(reward) and env.observation_space.contains(obs)
+    env.close()

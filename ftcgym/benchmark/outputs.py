@@ -44,7 +44,7 @@ class OutputFolder:
         except (FileExistsError, NotADirectoryError):
             raise ValueError(f"--out {self.path}: a file is in the way; the output folder must be a folder, or "
                              f"not exist yet") from None
-        key = self.path.resolve()
+        key = self._key = self.path.resolve()   # kept: the block may change the working directory
         if key in _held:
             fd, depth = _held[key]
             _held[key] = (fd, depth + 1)
@@ -54,7 +54,7 @@ class OutputFolder:
         return self
 
     def __exit__(self, *exc) -> None:
-        key = self.path.resolve()
+        key = self._key
         fd, depth = _held.pop(key)
         if depth > 1:
             _held[key] = (fd, depth - 1)

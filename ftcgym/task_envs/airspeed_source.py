@@ -42,7 +42,7 @@ from ftcgym.envs.action_space import ActionBox
 from ftcgym.fdd import wrap_with_detector
 from ftcgym.models.checks import POSITIVE, keywords_checked, number, real_array, whole_number
 from ftcgym.models.wind import DrydenWind, random_mean_wind
-from ftcgym.task_envs.rotor_loss_recovery import interval
+from ftcgym.task_envs.rotor_loss_recovery import check_open, interval
 
 ENV_ID = "ftcgym/AirspeedSource-v0"
 DETECTOR = "airdata_ekf"
@@ -145,7 +145,7 @@ class AirspeedSourceEnv(gym.Env):
         self.detector_kwargs = dict(detector_kwargs or {})
         self.observation_space = spaces.Box(-FEATURE_BOUND, FEATURE_BOUND, (N_FEATURES,), np.float32)
         self.action_space = ActionBox(-1.0, 1.0, (1,), np.float32)
-        self.env = None
+        self.env, self._closed = None, False
         # built now, so that a bad task, sensor, turbulence or detector setting fails at make
         DrydenWind.from_config({"turbulence": turbulence}, 0.002)
         self._simulator()
@@ -155,6 +155,7 @@ class AirspeedSourceEnv(gym.Env):
         if options:
             raise ValueError(f"reset options: AirspeedSource-v0 draws each episode from its gym.make keywords and "
                              f"takes none, got {options!r}")
+        check_open(self._closed, "reset")
         super().reset(seed=seed)
         for _ in range(MAX_RESETS):
             if self._fly_to_armed():
@@ -162,6 +163,7 @@ class AirspeedSourceEnv(gym.Env):
         raise RuntimeError(f"AirspeedSource: the detector never armed in {MAX_RESETS} flights")
 
     def step(self, action):
+        check_open(self._closed, "step")
         action = real_array(action, "action", "one finite number in [-1, 1]")
         if action.shape not in ((), (1,)) or not np.all(np.isfinite(action)):
             raise ValueError(f"action: must be one finite number, got {action!r}")
@@ -184,6 +186,7 @@ class AirspeedSourceEnv(gym.Env):
         if self.env is not None:
             self.env.close()
             self.env = None
+        self._closed = True
 
     # ------------------------------------------------------------------------------------ internals
     def _fly_to_armed(self) -> bool:

@@ -193,7 +193,7 @@ class RotorLossRecoveryEnv(gym.Env):
         self.observation_space = spaces.Box(-FEATURE_BOUND, FEATURE_BOUND, (N_FEATURES,), np.float32)
         self.action_space = ActionBox(-1.0, 1.0, (4,), np.float32)
         self._envs: dict[tuple, gym.Env] = {}   # one simulator per (vehicle, task)
-        self.env = None
+        self.env, self._closed = None, False
         try:                   # all built now: a bad wind, sensor, rate or detector setting fails at make
             for vehicle in self.vehicles:
                 for task in range(len(self.tasks)):
@@ -209,6 +209,7 @@ class RotorLossRecoveryEnv(gym.Env):
         if options:
             raise ValueError(f"reset options: RotorLossRecovery-v0 draws each episode from its gym.make keywords "
                              f"and takes none, got {options!r}")
+        check_open(self._closed, "reset")
         super().reset(seed=seed)
         for _ in range(MAX_RESETS):
             if self._fly_to_alarm():
@@ -216,6 +217,7 @@ class RotorLossRecoveryEnv(gym.Env):
         raise RuntimeError(f"RotorLossRecovery: no alarm in {MAX_RESETS} flights; check the detector settings")
 
     def step(self, action):
+        check_open(self._closed, "step")
         action = real_array(action, "action", "4 finite numbers in [-1, 1]")
         if action.shape != (4,) or not np.all(np.isfinite(action)):
             raise ValueError(f"action: must be 4 finite numbers, got {action!r}")
@@ -238,6 +240,7 @@ class RotorLossRecoveryEnv(gym.Env):
         for env in self._envs.values():
             env.close()
         self._envs.clear()
+        self._closed = True
 
     # ------------------------------------------------------------------------------------ internals
     def _fly_to_alarm(self) -> bool:
@@ -304,6 +307,12 @@ def _draw_wind(spec, rng) -> dict | None:
         return spec
     rest = {key: value for key, value in spec.items() if key != "mean_speed"}
     return {**rest, "mean": random_mean_wind(rng, interval(spec["mean_speed"], "wind.mean_speed"))}
+
+
+def check_open(closed: bool, call: str) -> None:
+    """A closed task env stays closed, as the vehicle envs do: a reset would quietly make new simulators."""
+    if closed:
+        raise RuntimeError(f"{call}: this env is closed (its simulators are released); make a new one")
 
 
 def interval(value, name: str, positive: bool = False) -> tuple[float, float]:
