@@ -2,6 +2,7 @@
 PYTHONPATH, and by name through the entry points of a small package that pip installs."""
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -265,3 +266,31 @@ def test_register_refuses_a_reference_like_or_taken_name():
         register(Scenario(name="mine:hover", env_id="ftcgym/Quadrotor-v0"))
     with pytest.raises(ValueError, match=r"'quad-hover' is already registered; give yours another name"):
         register(Scenario(name="quad-hover", env_id="ftcgym/Quadrotor-v0"))
+
+
+def test_a_model_without_a_manifest_is_said_to_be_taken_for_a_task_model(tmp_path):
+    """A plain SB3 .zip (no `ftcgym train` manifest) fails on its observation shape; the error says why it was
+    read as a rotor-loss-recovery model and where the recipe for one's own model is."""
+    sb3 = pytest.importorskip("stable_baselines3")
+    from ftcgym.training.policy import load_policy
+    env = gym.make("ftcgym/Quadrotor-v0", observation_format="flat", max_episode_seconds=0.2)
+    sb3.PPO("MlpPolicy", env, n_steps=32, batch_size=32, device="cpu").save(tmp_path / "mine.zip")
+    with pytest.raises(ValueError, match=r"mine.zip has no manifest.json beside it, so it was taken for a model of "
+                                         r"ftcgym/RotorLossRecovery-v0.*own-policy.md"):
+        load_policy(tmp_path / "mine.zip", gym.make("ftcgym/Quadrotor-v0"))
+
+
+@pytest.mark.parametrize("action, message", [
+    ("np.zeros(3)", r"policy 'bad_policy:Bad': action: expected shape \(4,\)"),
+    ("np.full(4, np.nan)", r"policy 'bad_policy:Bad': action"),
+])
+def test_the_cli_rejects_a_policy_that_acts_wrongly_before_flying(tmp_path, action, message):
+    (tmp_path / "bad_policy.py").write_text(f"import numpy as np\n\n\nclass Bad:\n    def __init__(self, env):\n"
+                                            f"        pass\n\n    def reset(self, obs, info):\n        pass\n\n"
+                                            f"    def act(self, obs, info):\n        return {action}\n")
+    run = subprocess.run([str(FTCGYM), "bench", "--scenario", "quad-hover", "--policy", "bad_policy:Bad",
+                          "--episodes", "2", "--out", str(tmp_path / "out")],
+                         env={**os.environ, "PYTHONPATH": str(tmp_path)}, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2 and len(run.stderr.strip().splitlines()) == 1, run.stderr
+    assert re.search(r"ftcgym bench: scenario 'quad-hover': " + message, run.stderr), run.stderr
+    assert "retry" not in run.stderr and not (tmp_path / "out" / "results.json").exists()

@@ -269,16 +269,22 @@ def make_scored_env(scenario: Scenario, env_overrides: dict | None = None) -> tu
 
 
 def check_setup(scenario: Scenario, env_overrides: dict | None = None, policies=()) -> None:
-    """Build the scenario's env and detector, and each of `policies` on that env, once: a bad env or detector
-    argument, or a policy that does not fly the env (or lacks `act`), is one ValueError naming the scenario
-    before any episode flies (instead of the same failure in every episode)."""
+    """Build the scenario's env and detector, and each of `policies` on that env, and fly each policy's first
+    step: a bad env or detector argument, or a policy that does not fly the env (lacks `act`, or acts with a wrong
+    shape or a NaN), is one ValueError naming the scenario before any episode flies (instead of the same failure
+    in every episode)."""
     try:
         env = make_env(scenario, env_overrides)
     except (ValueError, TypeError) as error:
         raise ValueError(f"scenario {scenario.name!r}: {error}") from error
     try:
         for policy in policies:
-            _check_detector(make_policy(policy, env), policy, env)
+            built = make_policy(policy, env)
+            _check_detector(built, policy, env)
+            try:
+                roll_out(env, built, seed=0, until=0.0)         # reset and one step
+            except (ValueError, TypeError) as error:
+                raise ValueError(f"policy {policy!r}: {error}") from error
     except (ValueError, TypeError) as error:
         raise ValueError(f"scenario {scenario.name!r}: {error}") from error
     finally:

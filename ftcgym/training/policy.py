@@ -171,7 +171,14 @@ def load_policy(path, env):
     of the env id it was trained on (`POLICY_CLASSES`; `LearnedPolicy` for any other id)."""
     env_id = trained_env_id(path)
     _check_vehicle(path, env_id, check_flown_env(env, str(path)))
-    return POLICY_CLASSES.get(env_id, LearnedPolicy).load(path, env)
+    try:
+        return POLICY_CLASSES.get(env_id, LearnedPolicy).load(path, env)
+    except ValueError as error:
+        if model_files(path)[2].is_file():
+            raise
+        raise ValueError(f"{error}. {path} has no {MANIFEST_FILE} beside it, so it was taken for a model of "
+                         f"{TASK_ENV_ID} saved by `ftcgym train`; a Stable-Baselines3 model of your own flies as a "
+                         f"policy class of yours (docs/howto/own-policy.md)") from None
 
 
 def _check_vehicle(path, env_id: str, base) -> None:
