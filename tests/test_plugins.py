@@ -294,3 +294,19 @@ def test_the_cli_rejects_a_policy_that_acts_wrongly_before_flying(tmp_path, acti
     assert run.returncode == 2 and len(run.stderr.strip().splitlines()) == 1, run.stderr
     assert re.search(r"ftcgym bench: scenario 'quad-hover': " + message, run.stderr), run.stderr
     assert "retry" not in run.stderr and not (tmp_path / "out" / "results.json").exists()
+
+
+@pytest.mark.parametrize("status, message", [
+    ({"alarm": False, "alarm_time": None}, r"status\(\) gave \['alarm', 'alarm_time'\]; it must hold"),
+    ({"alarm": True, "alarm_time": 0.0, "isolated": [2]}, r"status\(\)\['isolated'\] is \[2\]; accepted: None, "
+                                                           r"a rotor index \(int\) or a name \(str\)"),
+    ({"alarm": True, "alarm_time": 0.0, "isolated": np.array([2])}, r"status\(\)\['isolated'\] is array"),
+])
+def test_a_status_the_benchmark_cannot_score_is_named_at_the_first_step(monkeypatch, status, message):
+    detector = _user_detector(monkeypatch, name="odd")
+    detector.status = lambda: status
+    env = DetectorWrapper(gym.make("ftcgym/Quadrotor-v0"), detector)
+    with pytest.raises(ValueError, match=r"detector 'odd': " + message):
+        env.reset(seed=0)
+    detector.status = lambda: {"alarm": True, "alarm_time": 0.0, "isolated": np.int64(2)}   # numpy ints are ints
+    env.reset(seed=0)

@@ -5,8 +5,9 @@ them in `observation_space`; it also adds `info["fdd"][<name>]` (alarm, alarm_ti
 It reads the observation by key and `info["time"]` only, never simulator internals.
 
 The detector's `name` must be a non-empty string without "/", used by no other detector wrapper of the env; its
-`outputs()` are checked against `output_fields` (keys, shapes, finite values) on the first observation after
-each reset, which names the detector and the field, and not on later steps (their cost).
+`outputs()` are checked against `output_fields` (keys, shapes, finite values) and its `status()` for the keys the
+benchmark scores on the first observation after each reset, naming the detector and the field; not on later
+steps (their cost).
 
 Per step it returns a fresh observation dict (the env's arrays, not copied, plus the detector's outputs) and
 the env's own `info` (envs return a fresh one per step) with `info["fdd"]` replaced by a new dict that keeps
@@ -64,8 +65,12 @@ class DetectorWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
 
     def _publish(self, obs, info):
         self._time = float(info["time"])
+        first = self._check_outputs
         obs = self.observation(obs)
-        info["fdd"] = {**info.get("fdd", {}), self.detector.name: self.detector.status()}
+        status = self.detector.status()
+        if first:
+            _check_status(self.detector.name, status)
+        info["fdd"] = {**info.get("fdd", {}), self.detector.name: status}
         return obs, info
 
     def observation(self, observation: dict) -> dict:
@@ -90,6 +95,19 @@ def _check_name(detector, env) -> None:
             raise ValueError(f"DetectorWrapper: the env already has a detector named {name!r}; a second would "
                              f"overwrite its info['fdd'][{name!r}]: give one of them another name")
         inner = inner.env
+
+
+def _check_status(name: str, status) -> None:
+    """`status()` holds what the benchmark scores: `alarm`, `alarm_time` (None or s) and `isolated` (None, a rotor
+    index or a name), so that a `[2]` or an array is not scored as a wrong isolation without a word."""
+    if not isinstance(status, dict) or not {"alarm", "alarm_time", "isolated"} <= set(status):
+        got = sorted(status) if isinstance(status, dict) else type(status).__name__
+        raise ValueError(f"detector {name!r}: status() gave {got}; it must hold 'alarm', 'alarm_time' and 'isolated'")
+    isolated = status["isolated"]
+    if not (isolated is None or isinstance(isolated, str)
+            or isinstance(isolated, (int, np.integer)) and not isinstance(isolated, (bool, np.bool_))):
+        raise ValueError(f"detector {name!r}: status()['isolated'] is {isolated!r}; accepted: None, a rotor index "
+                         f"(int) or a name (str)")
 
 
 def _check_outputs(detector, outputs) -> None:
