@@ -8,11 +8,14 @@ A name resolves, in this order, to
    `[project.entry-points."ftcgym.policies"] my-policy = "mypkg.policies:MyPolicy"`;
 3. a "MODULE:ATTR" reference to an importable module, e.g. `mypkg.policies:MyPolicy`.
 
-Anything else is a ValueError that says what was tried and what is accepted.
+Anything else is a ValueError that says what was tried and what is accepted. An entry point named like a
+built-in cannot replace it: it is left out, with a `PluginNameWarning`.
 """
 from __future__ import annotations
 
 import difflib
+import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 from importlib import import_module, metadata
 
@@ -25,19 +28,36 @@ class Entry:
     description: str = ""
 
 
-class Registry:
-    """The catalogue of one kind of plug-in (see the module docstring)."""
+class PluginNameWarning(UserWarning):
+    """An installed plug-in's entry point has the name of a built-in, which keeps it."""
 
-    def __init__(self, kind: str, group: str, builtins: dict[str, Entry]):
+
+class Registry:
+    """The catalogue of one kind of plug-in (see the module docstring). `reserved`, if given, returns further
+    names that come before the entry points (the scenarios registered in this process)."""
+
+    def __init__(self, kind: str, group: str, builtins: dict[str, Entry],
+                 reserved: Callable[[], object] | None = None):
         self.kind, self.group, self.builtins = kind, group, dict(builtins)
+        self._reserved = reserved or (lambda: ())
 
     def installed(self) -> dict[str, metadata.EntryPoint]:
-        """Entry points of installed packages in this catalogue's group, by name."""
-        return {ep.name: ep for ep in metadata.entry_points(group=self.group)}
+        """Entry points of installed packages in this catalogue's group, by name; one named like a built-in is
+        left out, with a PluginNameWarning."""
+        taken = set(self.builtins) | set(self._reserved())
+        found = {}
+        for ep in metadata.entry_points(group=self.group):
+            if ep.name in taken:
+                warnings.warn(f"{self.kind}: the entry point {ep.name!r} ({ep.value}) of group {self.group!r} has "
+                              f"the name of a built-in {self.kind}, which keeps the name; give it another",
+                              PluginNameWarning, stacklevel=2)
+            else:
+                found[ep.name] = ep
+        return found
 
     def names(self) -> list[str]:
         """Built-in names, then installed ones."""
-        return list(self.builtins) + [name for name in self.installed() if name not in self.builtins]
+        return list(self.builtins) + list(self.installed())
 
     def __iter__(self):
         return iter(self.names())

@@ -310,3 +310,22 @@ def test_a_status_the_benchmark_cannot_score_is_named_at_the_first_step(monkeypa
         env.reset(seed=0)
     detector.status = lambda: {"alarm": True, "alarm_time": 0.0, "isolated": np.int64(2)}   # numpy ints are ints
     env.reset(seed=0)
+
+
+def test_an_entry_point_named_like_a_built_in_is_left_out_with_a_warning(monkeypatch):
+    from importlib import metadata
+
+    from ftcgym.agents.catalogue import POLICIES
+    from ftcgym.benchmark.scenarios import PLUG_INS
+    from ftcgym.registry import PluginNameWarning
+
+    points = {"ftcgym.policies": [metadata.EntryPoint("nominal", "mypkg:Mine", "ftcgym.policies"),
+                                  metadata.EntryPoint("mine", "mypkg:Mine", "ftcgym.policies")],
+              "ftcgym.scenarios": [metadata.EntryPoint("quad-hover", "mypkg:hover", "ftcgym.scenarios")]}
+    monkeypatch.setattr(metadata, "entry_points", lambda group: points.get(group, []))
+    with pytest.warns(PluginNameWarning, match=r"policy: the entry point 'nominal' \(mypkg:Mine\) of group "
+                                               r"'ftcgym.policies' has the name of a built-in policy"):
+        names = POLICIES.names()
+    assert names.count("nominal") == 1 and "mine" in names
+    with pytest.warns(PluginNameWarning, match=r"scenario: the entry point 'quad-hover'"):
+        assert "quad-hover" not in PLUG_INS.installed()

@@ -74,7 +74,7 @@ class Scenario:
 
 SCENARIOS: dict[str, Scenario] = {}
 #: scenarios of installed packages (entry-point group `ftcgym.scenarios`) and MODULE:ATTR references
-PLUG_INS = Registry("scenario", "ftcgym.scenarios", {})
+PLUG_INS = Registry("scenario", "ftcgym.scenarios", {}, reserved=lambda: SCENARIOS)
 
 
 def register(scenario: Scenario) -> Scenario:
