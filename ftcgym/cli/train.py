@@ -75,6 +75,8 @@ def _run(args, argv: list[str]) -> int:
         print(f"imitation pre-training: {len(manifest['pretrain']['iterations'])} DAgger iterations, "
               f"{last['samples']} samples in {manifest['pretrain']['wall_time_s']:.1f} s, "
               f"{fit_summary(last)}{final}")
+    written = ", ".join(name for name in ("model.zip", "vecnormalize.pkl", "manifest.json")
+                        if os.path.exists(os.path.join(out, name)))
     print(f"{manifest['steps']} steps in {manifest['wall_time_s']:.1f} s ({manifest['steps_per_s'] or 0:.0f} steps/s, "
-          f"{config.n_envs} env{'s' if config.n_envs != 1 else ''}); wrote model.zip, manifest.json to {out}")
+          f"{config.n_envs} env{'s' if config.n_envs != 1 else ''}); wrote {written} to {out}")
     return 0

@@ -29,20 +29,19 @@ from ftcgym.registry import Entry, Registry
 DETECTORS = Registry("detector", "ftcgym.detectors", {
     "loe_kalman": Entry("ftcgym.fdd.loe_kalman:loe_kalman_wrapper",
                         "loss-of-effectiveness Kalman estimator and hypothesis test (Strack van Schijndel et al. "
-                        "2023, 000)"),
+                        "2023)"),
     "loe_cusum": Entry("ftcgym.fdd.loe_cusum:loe_cusum_wrapper",
-                       "fast rotor loss: per-rotor CUSUM on 000's angular-acceleration residual, confirmed by the "
-                       "motor-speed residual (Page 1954)"),
+                       "fast rotor loss: per-rotor CUSUM on the angular-acceleration residual of Strack van "
+                       "Schijndel et al. 2023, confirmed by the motor-speed residual (Page 1954)"),
     "aekf": Entry("ftcgym.fdd.aekf:aekf_wrapper",
-                  "augmented EKF of rotor loss of effectiveness with an innovation test (Lu et al., 002)"),
+                  "augmented EKF of rotor loss of effectiveness with an innovation test (Lu, van Kampen and Yu)"),
     "iv_change": Entry("ftcgym.fdd.iv_change:iv_change_wrapper",
-                       "payload change by sensor-to-sensor instrumental variables (Ho et al., 004)"),
+                       "payload change by sensor-to-sensor instrumental variables (Ho, Hendeby and Enqvist 2020)"),
     "airdata_ekf": Entry("ftcgym.fdd.airdata_ekf:airdata_ekf_wrapper",
-                         "synthetic air-data EKF with pitot, GNSS and pusher-RPM fault detection (Larocque 2023, "
-                         "001)"),
+                         "synthetic air-data EKF with pitot, GNSS and pusher-RPM fault detection (Larocque 2023)"),
     "propulsion_bayes": Entry("ftcgym.fdd.propulsion_bayes:propulsion_bayes_wrapper",
                               "propeller icing and motor friction by multiple-model Kalman and Bayes filters "
-                              "(Haaland et al., 003)"),
+                              "(Haaland et al.)"),
 })
 
 
