@@ -102,6 +102,12 @@ def test_an_unknown_or_unimportable_policy_says_what_was_tried(name, message):
         make_policy(name, gym.make("ftcgym/Quadrotor-v0"))
 
 
+def test_a_class_that_takes_no_env_is_named():
+    with pytest.raises(TypeError, match=r"policy 'ftcgym.fdd:DetectorWrapper': it is called with the env as its one "
+                                        r"argument, and missing a required argument: 'detector'"):
+        make_policy("ftcgym.fdd:DetectorWrapper", gym.make("ftcgym/Quadrotor-v0"))
+
+
 def test_an_object_without_reset_and_act_is_no_policy():
     with pytest.raises(TypeError, match=r"policy 'ftcgym.models.constants:GRAVITY': a float is neither a class"):
         make_policy("ftcgym.models.constants:GRAVITY", gym.make("ftcgym/Quadrotor-v0"))

@@ -6,6 +6,8 @@ A policy entry is a class or factory called with the env (wrapped or not) that r
 """
 from __future__ import annotations
 
+import inspect
+
 from gymnasium import spaces
 
 from ftcgym.registry import Entry, Registry
@@ -59,6 +61,12 @@ def make_policy(name: str, env) -> Policy:
     if not callable(target):
         raise TypeError(f"policy {name!r}: a {type(target).__name__} is neither a class nor a factory called with "
                         f"the env")
+    try:
+        inspect.signature(target).bind(env)
+    except TypeError as error:
+        raise TypeError(f"policy {name!r}: it is called with the env as its one argument, and {error}") from None
+    except ValueError:        # no signature to read (a builtin): let the call say
+        pass
     return check_policy(target(env), name)
 
 
