@@ -64,7 +64,7 @@ from ..models.constants import GRAVITY
 from ..models.geometry import euler_from_quat, rotation_from_euler, skew_matrix
 from ..models.quadrotor import YAW_SIGNS, QuadrotorParams, rotor_wrench_matrix
 from ..settings import accepts, updated
-from .base import ARRAY_TYPES, AlarmLatch, vehicle_params
+from .base import ARRAY_TYPES, BEYOND_LIMIT, AlarmLatch, beyond_limit, check_time, vehicle_params, within_limit
 from .wrapper import DetectorWrapper
 
 N_X = 21
@@ -89,8 +89,8 @@ Q_MATRIX, R_DIAGONAL, MODEL = slice(0, 441), slice(441, 453), slice(453, 494)
 DT, FORGET, THRESHOLD, ISOLATION_THRESHOLD, WARMUP = range(494, 499)
 #: y's rows (eq. 28-36 plus the gyro, `_measurement`): the state each reads, and the gyro rows' bias state
 MEASURED = np.array((6, 7, 8, 9, 10, 11, 0, 1, 2, 3, 4, 5))
-#: `_step`'s answers besides a rotor the new alarm isolates: nothing new, a non-finite reading (state untouched),
-#: an alarm isolating nothing, and ISOLATED_LATER + i: the first isolation (rotor i) after such an alarm
+#: `_step`'s answers besides a rotor the new alarm isolates: nothing new, a reading beyond READING_LIMIT (state
+#: untouched), an alarm isolating nothing, and ISOLATED_LATER + i: the first isolation (rotor i) after such an alarm
 NOTHING, REJECTED, ALARM_WITHOUT_ROTOR, ISOLATED_LATER = -1, -2, -3, 10
 #: the constants of f(x, u) in the one array the compiled functions read (`AugmentedEkfDetector._model`): mass,
 #: thrust coefficient c_T, rotor drag coefficient k_d, propeller inertia I_p, linear body drag (FRD) and rotational
@@ -227,8 +227,8 @@ class AugmentedEkfDetector:
 
     def update(self, readings: dict, time: float, command: np.ndarray | None = None) -> None:
         """One sample: predict from the previous one (eq. 6-12), correct with this one (eq. 13-18), detect (eq. 41-42),
-        compiled (`_step`); the first sample initialises. A non-finite reading, command or time raises ValueError
-        naming it, with the state untouched."""
+        compiled (`_step`); the first sample initialises. A reading or command beyond READING_LIMIT (NaN, inf) or a
+        non-finite time raises ValueError naming it, with the state untouched."""
         command = _NO_COMMAND if command is None else np.asarray(command, np.float64)
         if self._start is None or not math.isfinite(time):
             values = _floats(readings, self.KEYS)
@@ -351,14 +351,14 @@ def _floats(readings: dict, keys) -> list:
 
 
 def _check_finite(values: list, keys, command: np.ndarray, time: float) -> None:
-    """ValueError naming the first non-finite reading, else the command, else the time."""
+    """ValueError naming the first reading beyond READING_LIMIT (NaN, inf), else the command, as `_step` rejects
+    them, else a non-finite time."""
     for key, value in zip(keys, values):
-        if not np.isfinite(value).all():
-            raise ValueError(f"readings[{key!r}]: must be finite (no NaN or inf), got {value.tolist()}")
-    if not np.isfinite(command).all():
-        raise ValueError(f"command: must be finite (no NaN or inf), got {command.tolist()}")
-    if not math.isfinite(time):
-        raise ValueError(f"time: must be finite, got {time!r}")
+        if beyond_limit(value):
+            raise ValueError(f"aekf: reading {key!r} {BEYOND_LIMIT}: {value.tolist()}")
+    if beyond_limit(command):
+        raise ValueError(f"aekf: the command {BEYOND_LIMIT}: {command.tolist()}")
+    check_time(time, "aekf")
 
 
 def _override(defaults: dict, overrides: dict | None, name: str) -> dict:
@@ -383,12 +383,12 @@ def _step(state, constants, position, velocity, attitude, gyro, Omega, command, 
     """One sample after the first, in place on `state` (layout at STATE_SIZE): predict (eq. 6-12) from the previous
     sample's speeds, correct (eq. 13-18) with the measurement, accumulate the innovation (eq. 42), publish the
     outputs and detect (`_detect`); keeps this sample's speeds and held position and velocity. Returns
-    `_detect`'s answer, or REJECTED (nothing changed) if a reading or the command is not finite."""
+    `_detect`'s answer, or REJECTED (nothing changed) if a reading or the command is beyond READING_LIMIT."""
     position, velocity, attitude, gyro, Omega = (              # as `_floats` converts them
         np.asarray(position, np.float64), np.asarray(velocity, np.float64), np.asarray(attitude, np.float64),
         np.asarray(gyro, np.float64), np.asarray(Omega, np.float64))
-    if not (_finite(position) and _finite(velocity) and _finite(attitude) and _finite(gyro) and _finite(Omega)
-            and _finite(command)):
+    if not (within_limit(position) and within_limit(velocity) and within_limit(attitude) and within_limit(gyro)
+            and within_limit(Omega) and within_limit(command)):
         return REJECTED
     x, P, held = state[X], state[COVARIANCE].reshape(N_X, N_X), state[HELD]
     _predict(x, P, constants[Q_MATRIX].reshape(N_X, N_X), Omega, state[OMEGA_PREV], constants[DT],
@@ -438,14 +438,6 @@ def _isolate(state, constants):  # pragma: no cover (compiled)
     loe = state[LOE]
     i = np.argmax(loe)
     return i if loe[i] > constants[ISOLATION_THRESHOLD] else -1
-
-
-@njit(cache=True)
-def _finite(a):  # pragma: no cover (compiled)
-    finite = True
-    for v in a.flat:
-        finite &= math.isfinite(v)
-    return finite
 
 
 @njit(cache=True)

@@ -90,7 +90,18 @@ from ..models.quadplane_aero import aero_model, fuselage_loads, speed_squared, w
 from ..models.vsqp import VsqpParams
 from ..settings import updated
 from . import kalman
-from .base import ARRAY_TYPES, biquad_constants, biquad_step, check_time, model_with_error, vehicle_params
+from .base import (
+    ARRAY_TYPES,
+    BEYOND_LIMIT,
+    READING_LIMIT,
+    beyond_limit,
+    biquad_constants,
+    biquad_step,
+    check_time,
+    model_with_error,
+    vehicle_params,
+    within_limit,
+)
 from .pitot_detection import (
     C_ALARM,
     C_ALARM_TIME,
@@ -710,18 +721,22 @@ class AirdataEkfDetector:
         except KeyError:
             self._pusher_current(readings)                    # names a missing pusher current
             raise
+        # the pitot and, before the start, the height (NaN is below no height: it would read as still on the
+        # ground) are checked first, so that a refused sample changes nothing
+        pitot = _first(readings[self.pitot_key]) if self.pitot_key in readings else None
+        down = None if self.started else float(readings["position"][2])
+        for key, value in ((self.pitot_key, pitot), ("position", down)):
+            if value is not None and not abs(value) <= READING_LIMIT:
+                raise ValueError(f"airdata_ekf: reading {key!r} {BEYOND_LIMIT} at t = {time}: "
+                                 f"{np.asarray(readings[key], dtype=float).tolist()}")
         # the sample s of `_ekf_cycle`, prefiltered (Sec. 5: inputs and measurements alike), and the current
         # checks, every sample, so their filters run before the EKF starts (each low-passes the raw pusher speed
         # and current itself, so it also runs alone)
         if not self._prepare_sample(parts):
             self._reject_non_finite(readings, self._pusher_current(readings), time)
-        if self.pitot_key in readings:
-            self._pitot = _first(readings[self.pitot_key])
+        if pitot is not None:
+            self._pitot = pitot
         if not self.started:
-            down = float(readings["position"][2])
-            if not math.isfinite(down):        # NaN is below no height: it would read as still on the ground
-                raise ValueError(f"airdata_ekf: reading 'position' is not finite at t = {time}: "
-                                 f"{np.asarray(readings['position']).tolist()}")
             if not self.takeoff(down):          # Sec. 5.3: start once airborne
                 return
             self.started, self.start_time, self._next_time = True, float(time), float(time)
@@ -748,15 +763,13 @@ class AirdataEkfDetector:
         return _prepare(_flat(parts), *states)
 
     def _reject_non_finite(self, readings: dict, current, time: float) -> None:
-        """Raise the ValueError that names the first reading with a NaN or infinity."""
-        keys = self._keys + (("pusher_current",) if self._propulsion is not None else ())
+        """Raise the ValueError that names the first reading beyond READING_LIMIT (NaN, inf), as `_prepare`
+        rejects it (the pusher current where the EKF or a current check reads it, `current` not None)."""
+        keys = self._keys + (("pusher_current",) if current is not None else ())
         for key in keys:
             part = np.asarray(readings[key], dtype=float).reshape(-1)
-            if not np.all(np.isfinite(part)):
-                raise ValueError(f"airdata_ekf: reading {key!r} is not finite at t = {time}: {part.tolist()}")
-        speed = float(np.asarray(readings["pusher_speed"], dtype=float).reshape(-1)[0])
-        raise ValueError(f"rpm current check: pusher_speed {speed!r} and pusher_current {_first(current)!r} must be "
-                         f"finite")
+            if beyond_limit(part):
+                raise ValueError(f"airdata_ekf: reading {key!r} {BEYOND_LIMIT} at t = {time}: {part.tolist()}")
 
     def _pusher_current(self, readings: dict):
         """The pusher current reading, where the pusher RPM's speed_from_current or a current check needs it."""
@@ -775,13 +788,11 @@ class AirdataEkfDetector:
         state, pitot, time = self._ekf_state[:EKF_HISTORY].copy(), self._pitot, float(time)
         code = _ekf_detect(self._filtered, self._ekf_state, self._ekf_constants, time - self.start_time, time,
                            math.nan if pitot is None else pitot, pitot is not None, *self._tests)
-        if code == PITOT_NOT_FINITE:
-            raise ValueError(f"airdata_ekf: reading {self.pitot_key!r} is not finite at t = {time}")
         self._history.append((time, self._filtered.copy(), state))
         if code == INNOVATION_HITS:
             if self._detect_innovation_faults(time):
                 self._roll_back()
-            residual = self._pitot_residual(time)            # of the re-run state
+            residual = self._pitot_residual()                # of the re-run state
             if residual is not None:
                 _pitot_tests(self._ekf_state, residual, time, self._detect, self._pitot_states, self._pitot_constants)
             _publish(self._ekf_state, self._pitot_states, self._published)
@@ -803,12 +814,10 @@ class AirdataEkfDetector:
         """The last prefiltered sample (a view of the sample step's state)."""
         return self._run[PREFILTERED:PREFILTERED + self._channels]
 
-    def _pitot_residual(self, time: float) -> float | None:
+    def _pitot_residual(self) -> float | None:
         """Sec. 6.1: r = pitot - EKF airspeed (None without a pitot reading)."""
         if self._pitot is None:
             return None
-        if not math.isfinite(self._pitot):
-            raise ValueError(f"airdata_ekf: reading {self.pitot_key!r} is not finite at t = {time}")
         reference = self.airspeed if self.pitot_reference == "airspeed" else self.forward_airspeed
         return self._pitot - reference
 
@@ -1004,10 +1013,9 @@ def _prepare(sample, run, lowpass, checks, check_constants):  # pragma: no cover
     (flipped where its dot product with the last is negative), the prefilter (Sec. 5, `biquad_step`) on the
     first channels (the pusher current only where the EKF uses it), then each current check (`check_step`) on
     the raw pusher speed s[13] and current s[19]. The filtered sample goes to `run`; False, the state untouched,
-    if a reading is not finite."""
-    for value in sample:
-        if not math.isfinite(value):
-            return False
+    if a reading is beyond READING_LIMIT (NaN, inf)."""
+    if not within_limit(sample):
+        return False
     q = sample[6:10]
     if run[HAS_LAST_Q] == 1.0 and np.dot(q, run[LAST_Q]) < 0.0:
         for i in range(4):
@@ -1046,8 +1054,8 @@ def _prepare_arrays(run, lowpass, checks, check_constants, accel, gyro, attitude
 #: has latched; then its constants: the detection delay, 1.0 for 001's residual (|V|) and the ramp test's least
 #: forward airspeed
 ARMED, RESIDUAL, LATCHED, DETECTION_DELAY, AIRSPEED_REFERENCE, RAMP_MIN_AIRSPEED, DETECT_SIZE = range(7)
-#: `_ekf_detect`'s answers besides 0 (done)
-PITOT_NOT_FINITE, INNOVATION_HITS = -1, 1
+#: `_ekf_detect`'s answer besides 0 (done)
+INNOVATION_HITS = 1
 
 
 @njit(cache=True)
@@ -1058,9 +1066,7 @@ def _ekf_detect(s, state, constants, elapsed, time, pitot, has_pitot, detect, in
     `detection_delay` s after the start; the pitot residual r = pitot - EKF airspeed (Sec. 6.1, `has_pitot`); the
     innovation tests (`innovation_bank`, Sec. 6.2); then, unless one of their criteria fired (INNOVATION_HITS:
     the caller latches the alarm and runs the pitot tests), the pitot tests (`_pitot_tests`) and the outputs
-    (`_publish`). PITOT_NOT_FINITE, the state untouched, for a pitot reading that is not finite."""
-    if has_pitot and not math.isfinite(pitot):
-        return PITOT_NOT_FINITE
+    (`_publish`). The pitot reading was checked by `update`."""
     _ekf_step(s, state, constants, elapsed)
     armed = elapsed >= detect[DETECTION_DELAY] - 1e-9
     detect[ARMED] = armed

@@ -17,6 +17,29 @@ from scipy import signal
 from ..models.quadrotor import QuadrotorParams
 from ..models.vsqp import VsqpParams
 
+#: The largest magnitude a detector takes in a reading or a command (SI units: rad/s, m/s^2, m, m/s, A, rad); a
+#: flight's sensors read far less. Beyond it a detector's products overflow, and its state stayed NaN for the rest
+#: of the flight without an alarm (loe_kalman's covariance at a rotor speed of 1e20 rad/s). NaN and inf are beyond
+#: it, so `abs(v) <= READING_LIMIT` is the one check on a reading. Time stamps (a log's may be large) and settings
+#: are only required to be finite.
+READING_LIMIT = 1e6
+#: how a detector's ValueError describes a reading (or command) that fails that check
+BEYOND_LIMIT = f"is not finite or beyond +-{READING_LIMIT:g}"
+
+
+def beyond_limit(value) -> bool:
+    """Whether a reading (a float or an array-like of floats) has a value that fails `abs(v) <= READING_LIMIT`."""
+    return not np.all(np.abs(value) <= READING_LIMIT)
+
+
+@njit(cache=True)
+def within_limit(a):  # pragma: no cover (compiled)
+    """Whether every value of the array `a` passes `abs(v) <= READING_LIMIT` (`beyond_limit`'s negation)."""
+    within = True
+    for v in a.flat:
+        within &= abs(v) <= READING_LIMIT
+    return within
+
 
 def check_time(time, detector: str) -> None:
     """ValueError unless `time` (s, a detector's sample time) is a finite number: an alarm time of NaN would

@@ -96,7 +96,7 @@ from ..models.constants import GRAVITY
 from ..models.geometry import euler_from_quat, rotation_matrix
 from ..models.quadrotor import QuadrotorParams, rotor_wrench_matrix
 from ..settings import accepts, updated
-from .base import ARRAY_TYPES, AlarmLatch, check_time, vehicle_params
+from .base import ARRAY_TYPES, BEYOND_LIMIT, AlarmLatch, beyond_limit, check_time, vehicle_params, within_limit
 from .wrapper import DetectorWrapper
 
 READ_KEYS = ("gyro", "accel", "reference_position", "reference_velocity", "reference_yaw")
@@ -608,9 +608,9 @@ class IvChangeDetector:
             self.wind_test.reset()
 
     def update(self, readings: dict, time: float, command=None) -> None:
-        """One reading, compiled (`_sample`; the wind test's Kalman step, every `period` s, in numpy); a non-finite
-        reading raises ValueError naming it, the state untouched. The wind test's CUSUM (before the grid samples,
-        whose alarms come later in the latch) and the alarm latch are here."""
+        """One reading, compiled (`_sample`; the wind test's Kalman step, every `period` s, in numpy); a reading
+        beyond READING_LIMIT (NaN, inf) raises ValueError naming it, the state untouched. The wind test's CUSUM
+        (before the grid samples, whose alarms come later in the latch) and the alarm latch are here."""
         check_time(time, self.name)
         state, values = self._state, self._readings(readings)
         try:
@@ -625,7 +625,7 @@ class IvChangeDetector:
                 if state[WIND_CUSUM] > self.wind_threshold:
                     self.latch.trigger(time)
             answer = _iv_samples(state, self._constants, time)
-        if answer == answer:                   # not NOTHING (NaN): an alarm time, or a non-finite reading
+        if answer == answer:                   # not NOTHING (NaN): an alarm time, or a rejected reading
             if answer == NON_FINITE:
                 _finite(readings, self._keys)
             else:
@@ -736,13 +736,12 @@ def iv_change_wrapper(env, **kwargs) -> DetectorWrapper:
 
 # ----------------------------------------------------------------------------------------- helpers
 def _finite(readings: dict, keys: tuple) -> list:
-    """[readings[key] as a list of floats for each key]; a NaN or infinite reading raises ValueError naming its
-    key. One check over all keys (a sum is finite only if every term is); the key is looked for only on failure."""
+    """[readings[key] as a list of floats for each key]; a reading beyond READING_LIMIT (NaN, inf) raises
+    ValueError naming its key, as `_sample` rejects it."""
     values = [_floats(readings[key]) for key in keys]
-    if not math.isfinite(sum(map(sum, values))):
-        for key, value in zip(keys, values):
-            if not all(map(math.isfinite, value)):   # else only the sum overflowed
-                raise ValueError(f"iv_change: reading {key!r} is not finite: {value}")
+    for key, value in zip(keys, values):
+        if beyond_limit(value):
+            raise ValueError(f"iv_change: reading {key!r} {BEYOND_LIMIT}: {value}")
     return values
 
 
@@ -823,14 +822,6 @@ def _lowpass(state, constants, offset, matrices, n, u, start):  # pragma: no cov
 
 
 @njit(cache=True)
-def _all_finite(a):  # pragma: no cover (compiled)
-    finite = True
-    for v in a:
-        finite &= math.isfinite(v)
-    return finite
-
-
-@njit(cache=True)
 def _flat(reading):  # pragma: no cover (compiled)
     """A reading as `_array` makes it: 1-D, float64 (the env's arrays as they are)."""
     return np.asarray(reading, np.float64).ravel()
@@ -842,13 +833,14 @@ def _sample(state, constants, gyro, accel, position, velocity, yaw_reading, atti
     """`IvChangeDetector.update` up to the wind test's filter step, then `_iv_samples` (if the wind test has no step
     due): the reference model (Sec. 4.2), the gate, the channels, the wind test's per-sample low-pass. Returns the
     time of an alarm the IV tests raise, NOTHING, WIND_DUE (the wind test's step is due: its filtered channels in
-    the state, the IV part left to `_iv_samples`), or NON_FINITE (state untouched)."""
+    the state, the IV part left to `_iv_samples`), or NON_FINITE (state untouched) for a reading beyond
+    READING_LIMIT (NaN, inf)."""
     gyro, accel, position, velocity = _flat(gyro), _flat(accel), _flat(position), _flat(velocity)
     yaw_reading, attitude, ground_velocity, rotor_speed = (_flat(yaw_reading), _flat(attitude),
                                                             _flat(ground_velocity), _flat(rotor_speed))
-    if not (_all_finite(gyro) and _all_finite(accel) and _all_finite(position) and _all_finite(velocity)
-            and _all_finite(yaw_reading) and _all_finite(attitude) and _all_finite(ground_velocity)
-            and _all_finite(rotor_speed)):
+    if not (within_limit(gyro) and within_limit(accel) and within_limit(position) and within_limit(velocity)
+            and within_limit(yaw_reading) and within_limit(attitude) and within_limit(ground_velocity)
+            and within_limit(rotor_speed)):
         return NON_FINITE
     c = constants
     p, q, r = gyro[0], gyro[1], gyro[2]

@@ -46,7 +46,17 @@ from numba import njit
 from ..models.constants import GRAVITY
 from ..models.quadrotor import QuadrotorParams
 from ..settings import updated
-from .base import AlarmLatch, biquad_constants, biquad_step, check_time, missing_reading, vehicle_params
+from .base import (
+    BEYOND_LIMIT,
+    AlarmLatch,
+    beyond_limit,
+    biquad_constants,
+    biquad_step,
+    check_time,
+    missing_reading,
+    vehicle_params,
+    within_limit,
+)
 from .loe_kalman import (
     NO_ALARM,
     NON_FINITE,
@@ -138,8 +148,8 @@ class LoeCusumDetector:
         self._alarm.reset()
 
     def update(self, readings: dict, time: float, command=None) -> None:
-        """One sample, compiled (`_step`); a non-finite reading, command or time, or a missing reading, raises
-        ValueError naming it, the state untouched."""
+        """One sample, compiled (`_step`); a reading or command beyond READING_LIMIT (NaN, inf), a non-finite time
+        or a missing reading raises ValueError naming it, the state untouched."""
         check_time(time, self.name)
         command = _NO_COMMAND if command is None else np.asarray(command, dtype=np.float64)
         try:
@@ -186,13 +196,10 @@ class LoeCusumDetector:
 def _step(gyro, accel, rotor_speed, command, state, constants):  # pragma: no cover (compiled)
     """One sample, in place on `state` (layout at STATE_SIZE): steps 1-6 of the module docstring. `command` is
     empty when unknown. Returns the rotor the alarm isolates, NO_ALARM, or NON_FINITE (state untouched) for a
-    reading or command that is not finite."""
+    reading or command beyond READING_LIMIT (NaN, inf)."""
     sample = _sample(gyro, accel, rotor_speed)
-    if sample.size == 0:
+    if sample.size == 0 or not within_limit(command):
         return NON_FINITE
-    for value in command:
-        if not math.isfinite(value):
-            return NON_FINITE
     started = state[STARTED] == 1.0
     _speed_test(sample[3:], command, state, constants, started)
     filtered = biquad_step(constants[LOWPASS], state[LOWPASS_MEMORY].reshape(2, 7), sample, not started)
@@ -300,9 +307,10 @@ def loe_cusum_wrapper(env, G="vehicle", G_scale: float = 1.0, motor="vehicle", *
 
 
 def _reject_non_finite(readings: dict, command) -> None:
-    """Raise a ValueError naming the first reading (or the command) with a NaN or infinity."""
-    for key in ("gyro", "accel", "rotor_speed"):
+    """Raise a ValueError naming the first reading (or the command) beyond READING_LIMIT (NaN, inf), as `_step`
+    rejects it."""
+    for key in READINGS:
         value = np.asarray(readings[key], dtype=float)
-        if not np.all(np.isfinite(value)):
-            raise ValueError(f"loe_cusum: reading {key!r} is not finite: {value.tolist()}")
-    raise ValueError(f"loe_cusum: the command is not finite: {np.asarray(command, dtype=float).tolist()}")
+        if beyond_limit(value):
+            raise ValueError(f"loe_cusum: reading {key!r} {BEYOND_LIMIT}: {value.tolist()}")
+    raise ValueError(f"loe_cusum: the command {BEYOND_LIMIT}: {np.asarray(command, dtype=float).tolist()}")

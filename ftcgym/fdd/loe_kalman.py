@@ -34,7 +34,17 @@ from ..models.constants import GRAVITY
 from ..models.quadrotor import QuadrotorParams
 from ..settings import accepts, updated
 from . import kalman
-from .base import AlarmLatch, biquad_constants, biquad_step, check_time, missing_reading, vehicle_params
+from .base import (
+    BEYOND_LIMIT,
+    AlarmLatch,
+    beyond_limit,
+    biquad_constants,
+    biquad_step,
+    check_time,
+    missing_reading,
+    vehicle_params,
+    within_limit,
+)
 
 #: 000 eq. (9): signs of each rotor's contribution to p_dot, q_dot and a_z for rotors r1..r4 of Fig. 2.
 SIGNS_000 = np.array([[1.0, -1.0, -1.0, 1.0],
@@ -221,8 +231,8 @@ class LoeKalmanDetector:
         self._alarm.reset()
 
     def update(self, readings: dict, time: float, command=None) -> None:
-        """One sample, compiled (`_step`); a non-finite reading or time, or a missing reading, raises ValueError
-        naming it, the state untouched."""
+        """One sample, compiled (`_step`); a reading beyond READING_LIMIT (NaN, inf), a non-finite time or a missing
+        reading raises ValueError naming it, the state untouched."""
         check_time(time, self.name)
         try:
             gyro, accel, rotor_speed = readings["gyro"], readings["accel"], readings["rotor_speed"]
@@ -278,8 +288,8 @@ class LoeKalmanDetector:
 def _step(gyro, accel, rotor_speed, state, constants):  # pragma: no cover (compiled)
     """One sample, in place on `state` (layout at STATE_SIZE): the low-pass (Sec. IV-A), the rates' backward
     difference (eq. 10), the Kalman step (Algorithm 1, `_kalman_step`), P_fail (eq. 15) and the decision
-    (eq. 16). Returns the rotor the alarm isolates, NO_ALARM, or NON_FINITE (state untouched) for a reading that
-    is not finite."""
+    (eq. 16). Returns the rotor the alarm isolates, NO_ALARM, or NON_FINITE (state untouched) for a reading
+    beyond READING_LIMIT (NaN, inf)."""
     sample = _sample(gyro, accel, rotor_speed)
     if sample.size == 0:
         return NON_FINITE
@@ -311,15 +321,13 @@ def _step(gyro, accel, rotor_speed, state, constants):  # pragma: no cover (comp
 
 @njit(cache=True)
 def _sample(gyro, accel, rotor_speed):  # pragma: no cover (compiled)
-    """The channels the detectors read, [p, q, a_z, omega_1..4], or an empty array if one is not finite."""
+    """The channels the detectors read, [p, q, a_z, omega_1..4], or an empty array if one is beyond READING_LIMIT
+    (NaN, inf)."""
     sample = np.empty(7)
     sample[0], sample[1], sample[2] = gyro[0], gyro[1], accel[2]
     for i in range(4):
         sample[3 + i] = rotor_speed[i]
-    for value in sample:
-        if not math.isfinite(value):
-            return sample[:0]
-    return sample
+    return sample if within_limit(sample) else sample[:0]
 
 
 @njit(cache=True)
@@ -357,8 +365,8 @@ def scaled_G(G, G_scale, where: str) -> tuple:
 
 
 def _reject_non_finite(readings: dict) -> None:
-    """Raise a ValueError naming the first reading with a NaN or infinity."""
-    for key in ("gyro", "accel", "rotor_speed"):
+    """Raise a ValueError naming the first reading beyond READING_LIMIT (NaN, inf), as `_sample` rejects it."""
+    for key in READINGS:
         value = np.asarray(readings[key], dtype=float)
-        if not np.all(np.isfinite(value)):
-            raise ValueError(f"loe_kalman: reading {key!r} is not finite: {value.tolist()}")
+        if beyond_limit(value):
+            raise ValueError(f"loe_kalman: reading {key!r} {BEYOND_LIMIT}: {value.tolist()}")

@@ -71,7 +71,7 @@ from ..models.pusher import TWO_PI, pusher_aero_torque
 from ..models.vsqp import VsqpParams
 from ..settings import accepts, updated
 from . import kalman
-from .base import AlarmLatch, check_time, missing_reading, model_with_error, vehicle_params
+from .base import BEYOND_LIMIT, READING_LIMIT, AlarmLatch, check_time, missing_reading, model_with_error, vehicle_params
 from .wrapper import DetectorWrapper
 
 MODES = ("no_fault", "propeller_icing", "viscous_friction", "static_friction")   # 003 Sec. II-B, m = 0..3
@@ -310,8 +310,8 @@ class PropulsionBayesDetector:
             if key not in readings:
                 raise missing_reading(readings, keys, self.name)
             value = float(np.asarray(readings[key], dtype=float).reshape(-1)[0])
-            if not math.isfinite(value):
-                raise ValueError(f"propulsion_bayes: reading {key!r} is not finite at t = {time}: {value!r}")
+            if not abs(value) <= READING_LIMIT:
+                raise ValueError(f"propulsion_bayes: reading {key!r} {BEYOND_LIMIT} at t = {time}: {value!r}")
             values.append(value)
         omega, current, airspeed = values
         self._time = float(time)
