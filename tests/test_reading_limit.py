@@ -121,3 +121,16 @@ def test_six_dof_residual_refuses_a_reading_beyond_the_limit():
                 "attitude": np.array([0.0, 0.0, 0.0, 1.0]), "velocity": np.zeros(3)}
     with pytest.raises(ValueError, match=r"^iv_change: reading 'accel' is not finite or beyond \+-1e\+06"):
         residual.update(readings)
+
+
+@pytest.mark.parametrize("name", ["aekf", "airdata_ekf"])
+def test_a_filter_that_a_reading_within_the_limit_makes_diverge_says_so(name, flights):
+    """A gyro of 1e6 rad/s passes the limit, but the EKFs cannot follow it: aekf's outputs went NaN a few samples
+    later without an error, airdata_ekf raised numpy's LinAlgError. Now a ValueError names the detector."""
+    samples = flights[READS[name][0]]
+    detector = _twins(name, samples[:BEFORE])[0]
+    readings, time = samples[BEFORE]
+    with pytest.raises(ValueError, match=rf"^{name}: the (filter|EKF) diverged at t = .*reset\(\) it"):
+        detector.update({**readings, "gyro": np.full(3, READING_LIMIT)}, time)
+        for readings, time in samples[BEFORE + 1:]:
+            detector.update(readings, time)

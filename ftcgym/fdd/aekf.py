@@ -64,7 +64,16 @@ from ..models.constants import GRAVITY
 from ..models.geometry import euler_from_quat, rotation_from_euler, skew_matrix
 from ..models.quadrotor import YAW_SIGNS, QuadrotorParams, rotor_wrench_matrix
 from ..settings import accepts, updated
-from .base import ARRAY_TYPES, BEYOND_LIMIT, AlarmLatch, beyond_limit, check_time, vehicle_params, within_limit
+from .base import (
+    ARRAY_TYPES,
+    BEYOND_LIMIT,
+    READING_LIMIT,
+    AlarmLatch,
+    beyond_limit,
+    check_time,
+    vehicle_params,
+    within_limit,
+)
 from .wrapper import DetectorWrapper
 
 N_X = 21
@@ -91,7 +100,7 @@ DT, FORGET, THRESHOLD, ISOLATION_THRESHOLD, WARMUP = range(494, 499)
 MEASURED = np.array((6, 7, 8, 9, 10, 11, 0, 1, 2, 3, 4, 5))
 #: `_step`'s answers besides a rotor the new alarm isolates: nothing new, a reading beyond READING_LIMIT (state
 #: untouched), an alarm isolating nothing, and ISOLATED_LATER + i: the first isolation (rotor i) after such an alarm
-NOTHING, REJECTED, ALARM_WITHOUT_ROTOR, ISOLATED_LATER = -1, -2, -3, 10
+NOTHING, REJECTED, ALARM_WITHOUT_ROTOR, DIVERGED, ISOLATED_LATER = -1, -2, -3, -4, 10
 #: the constants of f(x, u) in the one array the compiled functions read (`AugmentedEkfDetector._model`): mass,
 #: thrust coefficient c_T, rotor drag coefficient k_d, propeller inertia I_p, linear body drag (FRD) and rotational
 #: drag, inertia J, yaw signs s, the moment matrix A (3 x 4, row-major) and -A / J
@@ -235,11 +244,19 @@ class AugmentedEkfDetector:
             _check_finite(values, self.KEYS, command, time)  # raises for a non-finite time: only the first gets on
             self._initialise(*values, time)
             return
-        answer = self._compiled_step(readings, command, time)
+        try:
+            answer = self._compiled_step(readings, command, time)
+        except np.linalg.LinAlgError:
+            answer = DIVERGED
         if answer == NOTHING:
             return
         if answer == REJECTED:
             _check_finite(_floats(readings, self.KEYS), self.KEYS, command, time)
+        elif answer == DIVERGED:
+            raise ValueError(f"aekf: the filter diverged at t = {time}: its state left the finite numbers within "
+                             f"+-{READING_LIMIT:g}, after readings far outside its model in this or a recent sample "
+                             f"(this one's gyro {np.asarray(readings['gyro']).tolist()}); reset() it before feeding "
+                             f"it again")
         elif answer >= ISOLATED_LATER:
             self._latch.isolated = answer - ISOLATED_LATER     # the first isolation after the alarm is kept
         else:
@@ -383,7 +400,8 @@ def _step(state, constants, position, velocity, attitude, gyro, Omega, command, 
     """One sample after the first, in place on `state` (layout at STATE_SIZE): predict (eq. 6-12) from the previous
     sample's speeds, correct (eq. 13-18) with the measurement, accumulate the innovation (eq. 42), publish the
     outputs and detect (`_detect`); keeps this sample's speeds and held position and velocity. Returns
-    `_detect`'s answer, or REJECTED (nothing changed) if a reading or the command is beyond READING_LIMIT."""
+    `_detect`'s answer, REJECTED (nothing changed) if a reading or the command is beyond READING_LIMIT, or DIVERGED
+    if x or the outputs left the finite numbers within READING_LIMIT (the state is then spent)."""
     position, velocity, attitude, gyro, Omega = (              # as `_floats` converts them
         np.asarray(position, np.float64), np.asarray(velocity, np.float64), np.asarray(attitude, np.float64),
         np.asarray(gyro, np.float64), np.asarray(Omega, np.float64))
@@ -399,6 +417,8 @@ def _step(state, constants, position, velocity, attitude, gyro, Omega, command, 
     held[:3], held[3:] = position, velocity
     state[STATISTIC] = _accumulate(state[ACC], state[ACC_W], state[Z], gamma, S, constants[FORGET])
     _publish(state)
+    if not (within_limit(x) and np.isfinite(state[PUBLISHED]).all()):   # readings its model cannot follow
+        return DIVERGED
     return _detect(state, constants, time)
 
 

@@ -786,8 +786,15 @@ class AirdataEkfDetector:
         """One EKF step and the tests on it, compiled (`_ekf_detect`); on an innovation criterion that fired, the
         sensor's alarm (`_detect_innovation_faults`), the roll-back on a new one, then the pitot tests."""
         state, pitot, time = self._ekf_state[:EKF_HISTORY].copy(), self._pitot, float(time)
-        code = _ekf_detect(self._filtered, self._ekf_state, self._ekf_constants, time - self.start_time, time,
-                           math.nan if pitot is None else pitot, pitot is not None, *self._tests)
+        try:
+            code = _ekf_detect(self._filtered, self._ekf_state, self._ekf_constants, time - self.start_time, time,
+                               math.nan if pitot is None else pitot, pitot is not None, *self._tests)
+        except np.linalg.LinAlgError:
+            code = None
+        if code is None or beyond_limit(self._ekf_state[STATE]) or beyond_limit(self._published):
+            raise ValueError(f"airdata_ekf: the EKF diverged at t = {time}: its state left the finite numbers within "
+                             f"+-{READING_LIMIT:g}, after readings far outside its model in this or a recent sample "
+                             f"(this prefiltered one: {self._filtered.tolist()}); reset() it before feeding it again")
         self._history.append((time, self._filtered.copy(), state))
         if code == INNOVATION_HITS:
             if self._detect_innovation_faults(time):
