@@ -40,8 +40,8 @@ PHYSICS_HZ = Range(50.0, 20_000.0)   # Hz: coarser steps miss the motor lag, fin
 class FlightEnv(gym.Env):
     """Base class. Subclasses set the class constants, call `_setup` first in `__init__`, and implement
     `_make_params(vehicle, overrides)`, `_parse_faults(faults)`, `_build_vehicle()` (the parts made from
-    `self.params`; it sets `_bullet_loads`, `_run_physics`'s compiled call), `_loads_arguments()`, `_observe()`
-    and `_apply_faults()` (the faults in force from `self.time` on); `reset` starts with
+    `self.params`; it sets `_bullet_loads`, `_run_physics`'s compiled call), `_loads_arguments()`, `_observe()`,
+    `_truth()` (`info["truth"]`) and `_apply_faults()` (the faults in force from `self.time` on); `reset` starts with
     `_begin_episode(seed, options)`.
 
     `reset(options=...)` takes `faults`, `wind` and `vehicle_overrides` for one episode (RESET_OPTIONS): each
@@ -303,6 +303,17 @@ class FlightEnv(gym.Env):
         readings["reference_velocity"] = ref.velocity.copy()
         readings["reference_yaw"] = np.array([ref.yaw])
         return readings
+
+    def _info(self) -> dict:
+        """A fresh info dict (docs/concepts.md, 'The info contract'); `truth` (`_truth`) only at info_level "full",
+        empty at "none"."""
+        if self.info_level == "none":
+            return {}
+        info = {"time": self.time, "fault": self._faults.current(self.time), "faults": self._faults.as_dicts()}
+        if self.info_level == "full":
+            info["truth"] = self._truth()
+        info.update(self._outcome())
+        return info
 
     def _outcome(self) -> dict:
         """The `info` entries every env reports after `truth`: the task's reference and the crash state."""

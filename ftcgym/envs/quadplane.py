@@ -241,25 +241,18 @@ class QuadPlaneEnv(FlightEnv):
         u, _, w = self._air_body
         return math.atan2(w, u) if abs(u) + abs(w) > 1e-9 else 0.0
 
-    def _info(self) -> dict:
-        """A fresh info dict (docs/concepts.md, 'The info contract'); without `truth` at info_level "minimal",
-        empty at "none"."""
-        if self.info_level == "none":
-            return {}
-        info = {"time": self.time, "fault": self._faults.current(self.time), "faults": self._faults.as_dicts()}
-        if self.info_level == "full":
-            rotors, pusher = self.hover_rotors, self.pusher
-            info["truth"] = {
-                "position": np.array(self._p), "velocity": np.array(self._v), "attitude": np.array(self._q),
-                "body_rates": np.array(self._w), "wind": np.array(self._wind), "airspeed": self.airspeed(),
-                "air_velocity_body": np.array(self._air_body), "angle_of_attack": self.angle_of_attack(),
-                "mass": self.params.mass, "rotor_effectiveness": rotors.effectiveness.copy(),
-                "rotor_speed": rotors.omega.copy(), "skew": self.skew, "surfaces": self._motion[AILERON:].copy(),
-                "pusher": {"omega": pusher.omega, "current": pusher.current, "thrust": pusher.thrust,
-                           "theta_1": pusher.theta_1, "c_v": pusher.c_v, "I_0": pusher.I_0},
-            }
-        info.update(self._outcome())
-        return info
+    def _truth(self) -> dict:
+        """`info["truth"]` (docs/concepts.md, 'The info contract'), fresh arrays."""
+        rotors, pusher = self.hover_rotors, self.pusher
+        return {
+            "position": np.array(self._p), "velocity": np.array(self._v), "attitude": np.array(self._q),
+            "body_rates": np.array(self._w), "wind": np.array(self._wind), "airspeed": self.airspeed(),
+            "air_velocity_body": np.array(self._air_body), "angle_of_attack": self.angle_of_attack(),
+            "mass": self.params.mass, "rotor_effectiveness": rotors.effectiveness.copy(),
+            "rotor_speed": rotors.omega.copy(), "skew": self.skew, "surfaces": self._motion[AILERON:].copy(),
+            "pusher": {"omega": pusher.omega, "current": pusher.current, "thrust": pusher.thrust,
+                       "theta_1": pusher.theta_1, "c_v": pusher.c_v, "I_0": pusher.I_0},
+        }
 
 
 @njit(cache=True)

@@ -210,29 +210,21 @@ class QuadrotorEnv(FlightEnv):
         error = math.sqrt(ex * ex + ey * ey + ez * ez)
         return 1.0 - 0.5 * min(error, 4.0) - 0.5 * (1.0 - self._Rm[8]) - 0.05 * effort / 4
 
-    def _info(self) -> dict:
-        """A fresh info dict (docs/concepts.md, 'The info contract'); without `truth` at info_level "minimal",
-        empty at "none"."""
-        if self.info_level == "none":
-            return {}
-        info = {"time": self.time, "fault": self._faults.current(self.time), "faults": self._faults.as_dicts()}
-        if self.info_level == "full":
-            rotors, wind = self.rotors, self._wind
-            v = self._v
-            ax, ay, az = v[0] - wind[0], v[1] - wind[1], v[2] - wind[2]
-            info["truth"] = {
-                "position": np.array(self._p),
-                "velocity": np.array(v),
-                "attitude": np.array(self._q),
-                "body_rates": np.array(self._w),
-                "wind": np.array(wind),
-                "airspeed": math.sqrt(ax * ax + ay * ay + az * az),
-                "mass": self._mass,
-                "rotor_effectiveness": rotors.effectiveness.copy(),
-                "rotor_speed": rotors.omega.copy(),
-            }
-        info.update(self._outcome())
-        return info
+    def _truth(self) -> dict:
+        """`info["truth"]` (docs/concepts.md, 'The info contract'), fresh arrays."""
+        rotors, wind, v = self.rotors, self._wind, self._v
+        ax, ay, az = v[0] - wind[0], v[1] - wind[1], v[2] - wind[2]
+        return {
+            "position": np.array(self._p),
+            "velocity": np.array(v),
+            "attitude": np.array(self._q),
+            "body_rates": np.array(self._w),
+            "wind": np.array(wind),
+            "airspeed": math.sqrt(ax * ax + ay * ay + az * az),
+            "mass": self._mass,
+            "rotor_effectiveness": rotors.effectiveness.copy(),
+            "rotor_speed": rotors.omega.copy(),
+        }
 
 
 #: the action dtypes `rotor_command` takes directly (others go through `check_command` first)
