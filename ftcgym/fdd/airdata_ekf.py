@@ -791,7 +791,7 @@ class AirdataEkfDetector:
                                math.nan if pitot is None else pitot, pitot is not None, *self._tests)
         except np.linalg.LinAlgError:
             code = None
-        if code is None or beyond_limit(self._ekf_state[STATE]) or beyond_limit(self._published):
+        if code is None or not (within_limit(self._ekf_state[STATE]) and within_limit(self._published)):
             raise ValueError(f"airdata_ekf: the EKF diverged at t = {time}: its state left the finite numbers within "
                              f"+-{READING_LIMIT:g}, after readings far outside its model in this or a recent sample "
                              f"(this prefiltered one: {self._filtered.tolist()}); reset() it before feeding it again")
