@@ -49,7 +49,8 @@ class Registry:
         for ep in metadata.entry_points(group=self.group):
             if ep.name in taken:
                 warnings.warn(f"{self.kind}: the entry point {ep.name!r} ({ep.value}) of group {self.group!r} has "
-                              f"the name of a built-in {self.kind}, which keeps the name; give it another",
+                              f"the name of a built-in or registered {self.kind}, which keeps the name; give it "
+                              f"another",
                               PluginNameWarning, stacklevel=2)
             else:
                 found[ep.name] = ep

@@ -253,8 +253,11 @@ def test_outputs_that_break_the_declared_fields_are_named_at_the_first_step(monk
 
 
 @pytest.mark.parametrize("fields, message", [
-    ({"policies": "nominal"}, r"policies must be a tuple of policy names, got 'nominal'"),
+    ({"policies": "nominal"}, r"policies must be a tuple of one or more policy names, got 'nominal'"),
+    ({"policies": ()}, r"policies must be a tuple of one or more policy names, got \(\)"),
+    ({"policies": None}, r"policies must be a tuple of one or more policy names, got None"),
     ({"episodes": 0}, r"episodes must be a whole number >= 1, got 0"),
+    ({"fault_wrappers": len}, r"fault_wrappers must be a tuple of callables"),
     ({"name": ""}, r"name must be a non-empty string"),
     ({"detector": ""}, r"detector must be a non-empty string"),
     ({"env_kwargs": None}, r"env_kwargs must be a dict"),
@@ -264,6 +267,22 @@ def test_a_malformed_scenario_names_its_field(fields, message):
     from ftcgym.benchmark.scenarios import Scenario
     with pytest.raises(ValueError, match=message):
         Scenario(**{"name": "mine", "env_id": "ftcgym/Quadrotor-v0", **fields})
+
+
+def test_a_numpy_episode_count_is_a_whole_number():
+    from ftcgym.benchmark.scenarios import Scenario
+    assert Scenario(name="mine", env_id="ftcgym/Quadrotor-v0", episodes=np.int64(3)).episodes == 3
+
+
+def test_a_scenario_that_cannot_go_to_worker_processes_is_named_before_flying():
+    """A lambda among the wrappers failed every episode with a PicklingError, each retried, with workers > 1."""
+    from ftcgym.benchmark.runner import run_benchmark
+    from ftcgym.benchmark.scenarios import Scenario
+    scenario = Scenario(name="local-wrapper", env_id="ftcgym/Quadrotor-v0", env_kwargs={"max_episode_seconds": 0.1},
+                        episodes=2, wrappers=(lambda env: env,))
+    with pytest.raises(ValueError, match=r"scenario 'local-wrapper': it cannot go to worker processes .*module-level"):
+        run_benchmark([scenario], workers=2, progress=False)
+    assert len(run_benchmark([scenario], workers=1, progress=False)) == 2     # in one process it flies
 
 
 def test_register_refuses_a_reference_like_or_taken_name():
@@ -289,6 +308,7 @@ def test_a_model_without_a_manifest_is_said_to_be_taken_for_a_task_model(tmp_pat
 @pytest.mark.parametrize("action, message", [
     ("np.zeros(3)", r"policy 'bad_policy:Bad': action: expected shape \(4,\)"),
     ("np.full(4, np.nan)", r"policy 'bad_policy:Bad': action"),
+    ("[0.5, 0.5][3]", r"policy 'bad_policy:Bad': its first step raised IndexError: list index out of range"),
 ])
 def test_the_cli_rejects_a_policy_that_acts_wrongly_before_flying(tmp_path, action, message):
     (tmp_path / "bad_policy.py").write_text(f"import numpy as np\n\n\nclass Bad:\n    def __init__(self, env):\n"
@@ -330,8 +350,29 @@ def test_an_entry_point_named_like_a_built_in_is_left_out_with_a_warning(monkeyp
               "ftcgym.scenarios": [metadata.EntryPoint("quad-hover", "mypkg:hover", "ftcgym.scenarios")]}
     monkeypatch.setattr(metadata, "entry_points", lambda group: points.get(group, []))
     with pytest.warns(PluginNameWarning, match=r"policy: the entry point 'nominal' \(mypkg:Mine\) of group "
-                                               r"'ftcgym.policies' has the name of a built-in policy"):
+                                               r"'ftcgym.policies' has the name of a built-in or registered policy"):
         names = POLICIES.names()
     assert names.count("nominal") == 1 and "mine" in names
     with pytest.warns(PluginNameWarning, match=r"scenario: the entry point 'quad-hover'"):
         assert "quad-hover" not in PLUG_INS.installed()
+
+
+def test_a_detector_that_fails_its_first_outputs_is_named_before_any_policy(monkeypatch):
+    """check_setup resets the env once before the policies: a detector's own failure is not blamed on a policy."""
+    from ftcgym.benchmark.runner import check_setup
+    from ftcgym.benchmark.scenarios import Scenario
+    monkeypatch.syspath_prepend(str(PLUGIN))
+    scenario = Scenario(name="nan-detector", env_id="ftcgym/Quadrotor-v0", detector="bad_outputs:NanFirst")
+    module = type(sys)("bad_outputs")
+    from ftcgym_plugin_example.detector import RotorJumpDetector
+
+    class NanFirst(RotorJumpDetector):
+        def outputs(self):
+            return {"excess": np.full(4, np.nan)}
+
+    module.NanFirst = NanFirst
+    monkeypatch.setitem(sys.modules, "bad_outputs", module)
+    with pytest.raises(ValueError) as info:
+        check_setup(scenario, policies=("nominal",))
+    assert str(info.value).startswith("scenario 'nan-detector': detector 'rotor_jump': outputs()['excess'] is not "
+                                      "finite")

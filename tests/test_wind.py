@@ -248,3 +248,23 @@ def test_follow_floors_rounds_and_belongs_to_a_following_wind():
     with pytest.raises(ValueError, match="airspeed") as info:
         DrydenWind(0.002, airspeed="cruise")
     assert "'vehicle'" in str(info.value)
+
+
+def test_an_agent_step_longer_than_a_noise_block_is_filtered_at_its_own_speed():
+    """follow(v, steps) with steps > 1,024 (a noise block): the winds of one call all at its V_a. The first version
+    refilled one block per call, so winds of the old V_a leaked into the next call, more with each."""
+    def winds(chunk):
+        wind = DrydenWind(0.002, turbulence="light", airspeed="vehicle")
+        wind.reset(np.random.default_rng(9))
+        return followed(wind, [v for v in (3.0, 25.0, 8.0) for _ in range(2000 // chunk)], chunk)
+    np.testing.assert_allclose(winds(2000), winds(500), rtol=0, atol=1e-11)
+
+
+def test_each_episode_starts_at_the_mean_winds_rounded_airspeed():
+    wind = DrydenWind(0.002, mean=(3.0, 4.04, 0.0), turbulence="light", airspeed="vehicle")
+    assert wind.airspeed == 5.0                                  # |mean| = 5.028, rounded to 0.1 m/s
+    wind.reset(np.random.default_rng(0))
+    followed(wind, [20.0], 5)
+    assert wind.airspeed == 20.0
+    wind.reset(np.random.default_rng(0))                         # not the last episode's 20 m/s
+    assert wind.airspeed == 5.0

@@ -12,7 +12,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
-from ftcgym.models.wind import random_mean_wind
+from ftcgym.models.wind import VEHICLE, random_mean_wind
 
 WIND_STREAM = 6006          # separates the wind draw from the env's own stream for the same seed
 
@@ -26,8 +26,7 @@ class RandomMeanWind(gym.Wrapper):
         if not (0.0 <= low <= high):
             raise ValueError(f"speed_range: need 0 <= low <= high, got {speed_range!r}")
         self.speed_range, self.turbulence = (low, high), turbulence
-        configured = (env.spec.kwargs.get("wind") if env.spec is not None else None) or {}
-        self.airspeed = configured.get("airspeed")          # the turbulence's V_a, as gym.make was given it
+        self.airspeed = _configured_airspeed(env)
         self.mean_wind = None
         self._rng = np.random.default_rng()
 
@@ -39,6 +38,17 @@ class RandomMeanWind(gym.Wrapper):
             wind["airspeed"] = self.airspeed
         obs, info = self.env.reset(seed=seed, options={**(options or {}), "wind": wind})
         return obs, {**info, "mean_wind": list(self.mean_wind)}
+
+
+def _configured_airspeed(env: gym.Env):
+    """The `airspeed` of the env's own `wind`: as gym.make was given it, else (an env made otherwise, or a wrapper
+    whose spec gymnasium could not copy) "vehicle" if its configured wind follows the vehicle, else None."""
+    if env.spec is not None:
+        return (env.spec.kwargs.get("wind") or {}).get("airspeed")
+    flight = env.unwrapped
+    flight = getattr(flight, "plane", flight)          # QuadPlaneAutopilot-v0 flies a QuadPlane-v0
+    wind = getattr(flight, "wind", None)
+    return VEHICLE if getattr(wind, "follows_vehicle", False) else None
 
 
 def random_mean_wind_wrapper(env: gym.Env) -> gym.Env:

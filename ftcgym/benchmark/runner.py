@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import copy
 import os
+import pickle
 from dataclasses import dataclass
 
 import gymnasium as gym
@@ -278,17 +279,25 @@ def check_setup(scenario: Scenario, env_overrides: dict | None = None, policies=
     except (ValueError, TypeError) as error:
         raise ValueError(f"scenario {scenario.name!r}: {error}") from error
     try:
+        env.reset(seed=0)                  # the env, and its detectors' first outputs and status, before any policy
         for policy in policies:
             built = make_policy(policy, env)
             _check_detector(built, policy, env)
-            try:
-                roll_out(env, built, seed=0, until=0.0)         # reset and one step
-            except (ValueError, TypeError) as error:
-                raise ValueError(f"policy {policy!r}: {error}") from error
+            _first_step(env, built, policy)
     except (ValueError, TypeError) as error:
         raise ValueError(f"scenario {scenario.name!r}: {error}") from error
     finally:
         env.close()
+
+
+def _first_step(env, policy, name: str) -> None:
+    """The policy's reset and first step, its failure (whatever it raises) one ValueError naming it."""
+    try:
+        roll_out(env, policy, seed=0, until=0.0)
+    except (ValueError, TypeError) as error:
+        raise ValueError(f"policy {name!r}: {error}") from error
+    except Exception as error:  # noqa: BLE001 - the policy's own bug (an IndexError, torch's RuntimeError)
+        raise ValueError(f"policy {name!r}: its first step raised {type(error).__name__}: {error}") from error
 
 
 def _check_detector(policy, name: str, env) -> None:
@@ -343,7 +352,22 @@ def run_benchmark(scenarios, policies=None, episodes: int | None = None, seed: i
             for scenario in scenarios
             for policy in (policies or scenario.policies)
             for index in range(episodes or scenario.episodes)]
-    return run_jobs(jobs, backend, pool_size(workers, len(jobs)), progress=progress, **backend_options)
+    processes = pool_size(workers, len(jobs))
+    if processes > 1 or backend != "local":
+        for scenario in scenarios:
+            _check_picklable(scenario)
+    return run_jobs(jobs, backend, processes, progress=progress, **backend_options)
+
+
+def _check_picklable(scenario: Scenario) -> None:
+    """Episodes in other processes get the scenario pickled: a lambda or a local function among its wrappers would
+    fail every episode; say so once, before any flies."""
+    try:
+        pickle.dumps(scenario)
+    except (pickle.PicklingError, AttributeError, TypeError) as error:
+        raise ValueError(f"scenario {scenario.name!r}: it cannot go to worker processes ({error}); its wrappers and "
+                         f"fault_wrappers must be module-level functions or classes, or run it with workers=1"
+                         ) from None
 
 
 def pool_size(workers: int | None, episodes: int) -> int:

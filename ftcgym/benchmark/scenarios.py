@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import importlib.util
 import math
+import numbers
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields, replace
 
@@ -62,14 +63,15 @@ class Scenario:
         for name in ("env_kwargs", "detector_kwargs"):
             if not isinstance(getattr(self, name), dict):
                 raise ValueError(f"{where}: {name} must be a dict, got {getattr(self, name)!r}")
-        if isinstance(self.policies, str) or not all(isinstance(p, str) and p for p in self.policies):
-            raise ValueError(f"{where}: policies must be a tuple of policy names, got {self.policies!r}")
-        if isinstance(self.episodes, bool) or not isinstance(self.episodes, int) or self.episodes < 1:
+        if (not isinstance(self.policies, (tuple, list)) or not self.policies
+                or not all(isinstance(p, str) and p for p in self.policies)):
+            raise ValueError(f"{where}: policies must be a tuple of one or more policy names, got {self.policies!r}")
+        if isinstance(self.episodes, bool) or not isinstance(self.episodes, numbers.Integral) or self.episodes < 1:
             raise ValueError(f"{where}: episodes must be a whole number >= 1, got {self.episodes!r}")
         for name in ("wrappers", "fault_wrappers"):
-            if not all(callable(wrap) for wrap in getattr(self, name)):
-                raise ValueError(f"{where}: {name} must be a tuple of callables env -> env, got "
-                                 f"{getattr(self, name)!r}")
+            value = getattr(self, name)
+            if not isinstance(value, (tuple, list)) or not all(callable(wrap) for wrap in value):
+                raise ValueError(f"{where}: {name} must be a tuple of callables env -> env, got {value!r}")
 
 
 SCENARIOS: dict[str, Scenario] = {}

@@ -770,6 +770,7 @@ class AirdataEkfDetector:
             part = np.asarray(readings[key], dtype=float).reshape(-1)
             if beyond_limit(part):
                 raise ValueError(f"airdata_ekf: reading {key!r} {BEYOND_LIMIT} at t = {time}: {part.tolist()}")
+        raise ValueError(f"airdata_ekf: a reading {BEYOND_LIMIT} at t = {time}")   # found by `_prepare` alone
 
     def _pusher_current(self, readings: dict):
         """The pusher current reading, where the pusher RPM's speed_from_current or a current check needs it."""

@@ -6,8 +6,8 @@ It reads the observation by key and `info["time"]` only, never simulator interna
 
 The detector's `name` must be a non-empty string without "/", used by no other detector wrapper of the env; its
 `outputs()` are checked against `output_fields` (keys, shapes, finite values) and its `status()` for the keys the
-benchmark scores on the first observation after each reset, naming the detector and the field; not on later
-steps (their cost).
+benchmark scores on the observation `reset()` returns, naming the detector and the field; not at every step
+(their cost).
 
 Per step it returns a fresh observation dict (the env's arrays, not copied, plus the detector's outputs) and
 the env's own `info` (envs return a fresh one per step) with `info["fdd"]` replaced by a new dict that keeps
@@ -98,8 +98,8 @@ def _check_name(detector, env) -> None:
 
 
 def _check_status(name: str, status) -> None:
-    """`status()` holds what the benchmark scores: `alarm`, `alarm_time` (None or s) and `isolated` (None, a rotor
-    index or a name), so that a `[2]` or an array is not scored as a wrong isolation without a word."""
+    """`status()` holds the keys the benchmark scores (`alarm`, `alarm_time`, `isolated`), and `isolated` is None, a
+    rotor index or a name, so that a `[2]` or an array is not scored as a wrong isolation without a word."""
     if not isinstance(status, dict) or not {"alarm", "alarm_time", "isolated"} <= set(status):
         got = sorted(status) if isinstance(status, dict) else type(status).__name__
         raise ValueError(f"detector {name!r}: status() gave {got}; it must hold 'alarm', 'alarm_time' and 'isolated'")

@@ -29,8 +29,9 @@ time (Taylor's frozen turbulence, on which the Dryden spectra rest: MIL-F-8785C 
 Omega = omega / V_a): 004 eq. (14) with V_a = 1 and L in metres is the filter per metre flown, driven by white
 noise of unit intensity per metre, advanced by ds = V_a dt per step. Its state's stationary distribution does
 not depend on V_a, so a change of speed keeps sigma and changes only how fast the gusts pass. At a constant V_a
-it gives the time-domain filter's winds (the two state vectors differ by a constant diagonal scaling; equal to
-1e-13 m/s on the same draws, `tests/test_wind.py`).
+(a multiple of 0.1 m/s) it gives the time-domain filter's winds (the two state vectors differ by a constant
+diagonal scaling; within 5e-13 m/s on the same draws, `tests/test_wind.py`). Each episode starts at the mean
+wind's V_a, rounded.
 
 Randomness: only from the numpy Generator passed to reset(). Turbulence draws Gaussian noise in
 blocks of _BLOCK steps (bit-identical sequences for a given seed); a calm wind (all sigmas zero)
@@ -68,7 +69,6 @@ _CHUNK = 64            # steps filtered per compiled call (`DrydenWind._turbulen
 _CALM_HORIZONTAL = 1e-9  # m/s; below this the mean wind has no direction and u points north
 VEHICLE = "vehicle"      # `airspeed`: V_a follows the vehicle's speed through the mean wind
 _MIN_AIRSPEED = 1.0      # m/s, V_a's floor: keeps L/V_a finite
-_SPEED_STEP = 0.1        # m/s: a followed V_a is rounded to this, so each speed's filter is discretised once
 
 
 MAX_MEAN_WIND = 50.0                     # m/s, above a category-3 hurricane's sustained wind
@@ -171,6 +171,8 @@ class DrydenWind:
                              f"{VEHICLE!r} or None (the mean wind's speed, at least {_MIN_AIRSPEED:g} m/s)")
         if airspeed is None or self.follows_vehicle:
             airspeed = max(float(np.linalg.norm(self._mean)), _MIN_AIRSPEED)
+            if self.follows_vehicle:
+                airspeed = _rounded(airspeed)
         self._airspeed = _positive(airspeed, "airspeed", _AIRSPEED)
         self._chunk = _CHUNK
         self._calm = not np.any(self._sigmas > 0.0)
@@ -206,6 +208,7 @@ class DrydenWind:
         self._out = turbulence_axes(self._mean) @ c_mat
         self._state = np.zeros(5)
         self._discretised = {}                # speed -> ([Ad; out Ad], F^T)
+        self._start_airspeed = self._airspeed
         self._set_speed(self._airspeed)
 
     def _set_speed(self, airspeed: float) -> None:
@@ -224,8 +227,7 @@ class DrydenWind:
         self._chunk = steps
         if self._calm:
             return
-        speed = math.dist(velocity, self._mean_tuple)
-        rounded = _SPEED_STEP * round(min(max(speed, _MIN_AIRSPEED), _AIRSPEED.high) / _SPEED_STEP)
+        rounded = _rounded(math.dist(velocity, self._mean_tuple))
         if rounded != self._airspeed:
             self._set_speed(rounded)
 
@@ -250,6 +252,9 @@ class DrydenWind:
             return self._velocity.copy()
         self._state = self._init_factor @ rng.standard_normal(5)
         self._velocity = self._out @ self._state + self._mean
+        if self.follows_vehicle:                 # each episode starts at the mean wind's V_a (the vehicle at rest)
+            self._chunk = _CHUNK
+            self._set_speed(self._start_airspeed)
         # winds drawn before this reset are discarded
         self._stream = self._followed_winds() if self.follows_vehicle else self._turbulent_winds()
         return self._velocity.copy()
@@ -272,7 +277,7 @@ class DrydenWind:
         normals, used = np.empty((0, 5)), 0
         while True:
             steps = self._chunk
-            if used + steps > len(normals):
+            while used + steps > len(normals):
                 normals, used = np.vstack([normals[used:], self._rng.standard_normal((_BLOCK, 5))]), 0
             winds = _dryden_follow(self._transition, self._noise_factor_t, self._out, self._mean, self._state,
                                    normals[used:used + steps])
@@ -313,6 +318,12 @@ class DrydenWind:
     @property
     def dt(self) -> float:
         return self._dt
+
+
+def _rounded(speed: float) -> float:
+    """A followed V_a: at least 1 m/s, at most the accepted 200 m/s, to 0.1 m/s (so that each speed's filter is
+    discretised once, `_set_speed`)."""
+    return round(min(max(speed, _MIN_AIRSPEED), _AIRSPEED.high), 1)
 
 
 @functools.lru_cache(maxsize=4096)
