@@ -48,12 +48,12 @@ class DetectorWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         self.observation_space = spaces.Dict({**env.observation_space.spaces, **extra})
         self._command = None
         self._time = 0.0
-        self._check_outputs = True
+        self._first_of_episode = True
 
     def reset(self, *, seed=None, options=None):
         self.detector.reset()
         self._command = None
-        self._check_outputs = True
+        self._first_of_episode = True
         obs, info = self.env.reset(seed=seed, options=options)
         return self._publish(obs, info)
 
@@ -65,22 +65,19 @@ class DetectorWrapper(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
 
     def _publish(self, obs, info):
         self._time = float(info["time"])
-        first = self._check_outputs
         obs = self.observation(obs)
         status = self.detector.status()
-        if first:
+        if self._first_of_episode:             # the observation reset() returns: once per episode
+            self._first_of_episode = False
+            _check_outputs(self.detector, self.detector.outputs())
             _check_status(self.detector.name, status)
         info["fdd"] = {**info.get("fdd", {}), self.detector.name: status}
         return obs, info
 
     def observation(self, observation: dict) -> dict:
         self.detector.update(observation, self._time, self._command)
-        outputs = self.detector.outputs()
-        if self._check_outputs:
-            self._check_outputs = False
-            _check_outputs(self.detector, outputs)
         prefix = self.prefix
-        return {**observation, **{prefix + field: value for field, value in outputs.items()}}
+        return {**observation, **{prefix + field: value for field, value in self.detector.outputs().items()}}
 
 
 def _check_name(detector, env) -> None:
