@@ -376,3 +376,26 @@ def test_a_detector_that_fails_its_first_outputs_is_named_before_any_policy(monk
         check_setup(scenario, policies=("nominal",))
     assert str(info.value).startswith("scenario 'nan-detector': detector 'rotor_jump': outputs()['excess'] is not "
                                       "finite")
+
+
+def test_a_nan_alarm_time_is_named_with_its_detector(monkeypatch):
+    """A detector whose alarm_time turns NaN mid-episode: the scoring error says which detector."""
+    from ftcgym.benchmark.runner import run_episode
+    from ftcgym.benchmark.scenarios import Scenario
+    monkeypatch.syspath_prepend(str(PLUGIN))
+    from ftcgym_plugin_example.detector import RotorJumpDetector
+
+    class LateNan(RotorJumpDetector):
+        name = "late_nan"
+
+        def status(self):
+            return {**super().status(), "alarm": True, "alarm_time": float("nan")} if self.count else super().status()
+
+    module = type(sys)("late_nan")
+    module.LateNan = LateNan
+    monkeypatch.setitem(sys.modules, "late_nan", module)
+    scenario = Scenario(name="late-nan", env_id="ftcgym/Quadrotor-v0", detector="late_nan:LateNan",
+                        env_kwargs={"max_episode_seconds": 0.5, "faults": [{"kind": "rotor_loss", "target": 1,
+                                                                            "time": 0.1}]})
+    with pytest.raises(ValueError, match=r"detector 'late_nan': status\(\)'s alarm_time must be a finite time"):
+        run_episode(scenario, "nominal", seed=0)

@@ -208,13 +208,16 @@ def _detection_fields(log: EpisodeLog, onset, target) -> dict:
         return dict.fromkeys(("alarm_time", "detection_delay", "isolated_target",
                               "isolation_correct", "false_alarm"))
     has_target = onset is not None and target is not None
-    return {
-        "alarm_time": log.alarm_time,
-        "detection_delay": detection_delay(log.alarm_time, onset),
-        "isolated_target": log.isolated,
-        "isolation_correct": _native(log.isolated) == _native(target) if has_target else None,
-        "false_alarm": is_false_alarm(log.alarm_time, onset),
-    }
+    try:
+        return {
+            "alarm_time": log.alarm_time,
+            "detection_delay": detection_delay(log.alarm_time, onset),
+            "isolated_target": log.isolated,
+            "isolation_correct": _native(log.isolated) == _native(target) if has_target else None,
+            "false_alarm": is_false_alarm(log.alarm_time, onset),
+        }
+    except ValueError as error:                     # a NaN alarm time: say whose
+        raise ValueError(f"detector {log.detector!r}: status()'s {error}") from None
 
 
 def trajectory(log: EpisodeLog, max_hz: float = TRAJECTORY_MAX_HZ) -> dict[str, np.ndarray]:
