@@ -70,6 +70,7 @@ from .base import (
     READING_LIMIT,
     AlarmLatch,
     beyond_limit,
+    check_reading,
     check_time,
     vehicle_params,
     within_limit,
@@ -371,8 +372,7 @@ def _check_finite(values: list, keys, command: np.ndarray, time: float) -> None:
     """ValueError naming the first reading beyond READING_LIMIT (NaN, inf), else the command, as `_step` rejects
     them, else a non-finite time."""
     for key, value in zip(keys, values):
-        if beyond_limit(value):
-            raise ValueError(f"aekf: reading {key!r} {BEYOND_LIMIT}: {value.tolist()}")
+        check_reading("aekf", key, value)
     if beyond_limit(command):
         raise ValueError(f"aekf: the command {BEYOND_LIMIT}: {command.tolist()}")
     check_time(time, "aekf")

@@ -94,9 +94,9 @@ from .base import (
     ARRAY_TYPES,
     BEYOND_LIMIT,
     READING_LIMIT,
-    beyond_limit,
     biquad_constants,
     biquad_step,
+    check_reading,
     check_time,
     model_with_error,
     vehicle_params,
@@ -767,9 +767,7 @@ class AirdataEkfDetector:
         rejects it (the pusher current where the EKF or a current check reads it, `current` not None)."""
         keys = self._keys + (("pusher_current",) if current is not None else ())
         for key in keys:
-            part = np.asarray(readings[key], dtype=float).reshape(-1)
-            if beyond_limit(part):
-                raise ValueError(f"airdata_ekf: reading {key!r} {BEYOND_LIMIT} at t = {time}: {part.tolist()}")
+            check_reading("airdata_ekf", key, np.asarray(readings[key], dtype=float).reshape(-1), time)
         raise ValueError(f"airdata_ekf: a reading {BEYOND_LIMIT} at t = {time}")   # found by `_prepare` alone
 
     def _pusher_current(self, readings: dict):

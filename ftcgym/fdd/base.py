@@ -32,6 +32,15 @@ def beyond_limit(value) -> bool:
     return not np.all(np.abs(value) <= READING_LIMIT)
 
 
+def check_reading(detector: str, key: str, value, time: float | None = None) -> None:
+    """The ValueError for a reading `key` that fails `abs(v) <= READING_LIMIT`, naming the detector (and the
+    time, if given); nothing for one that passes."""
+    if beyond_limit(value):
+        when = "" if time is None else f" at t = {time}"
+        raise ValueError(f"{detector}: reading {key!r} {BEYOND_LIMIT}{when}: "
+                         f"{np.asarray(value, dtype=float).tolist()}")
+
+
 @njit(cache=True)
 def within_limit(a):  # pragma: no cover (compiled)
     """Whether every value of the array `a` passes `abs(v) <= READING_LIMIT` (`beyond_limit`'s negation)."""

@@ -96,7 +96,7 @@ from ..models.constants import GRAVITY
 from ..models.geometry import euler_from_quat, rotation_matrix
 from ..models.quadrotor import QuadrotorParams, rotor_wrench_matrix
 from ..settings import accepts, updated
-from .base import ARRAY_TYPES, BEYOND_LIMIT, AlarmLatch, beyond_limit, check_time, vehicle_params, within_limit
+from .base import ARRAY_TYPES, AlarmLatch, check_reading, check_time, vehicle_params, within_limit
 from .wrapper import DetectorWrapper
 
 READ_KEYS = ("gyro", "accel", "reference_position", "reference_velocity", "reference_yaw")
@@ -740,8 +740,7 @@ def _finite(readings: dict, keys: tuple) -> list:
     ValueError naming its key, as `_sample` rejects it."""
     values = [_floats(readings[key]) for key in keys]
     for key, value in zip(keys, values):
-        if beyond_limit(value):
-            raise ValueError(f"iv_change: reading {key!r} {BEYOND_LIMIT}: {value}")
+        check_reading("iv_change", key, value)
     return values
 
 

@@ -49,9 +49,9 @@ from ..settings import updated
 from .base import (
     BEYOND_LIMIT,
     AlarmLatch,
-    beyond_limit,
     biquad_constants,
     biquad_step,
+    check_reading,
     check_time,
     missing_reading,
     vehicle_params,
@@ -310,7 +310,5 @@ def _reject_non_finite(readings: dict, command) -> None:
     """Raise a ValueError naming the first reading (or the command) beyond READING_LIMIT (NaN, inf), as `_step`
     rejects it."""
     for key in READINGS:
-        value = np.asarray(readings[key], dtype=float)
-        if beyond_limit(value):
-            raise ValueError(f"loe_cusum: reading {key!r} {BEYOND_LIMIT}: {value.tolist()}")
+        check_reading("loe_cusum", key, readings[key])
     raise ValueError(f"loe_cusum: the command {BEYOND_LIMIT}: {np.asarray(command, dtype=float).tolist()}")

@@ -35,11 +35,10 @@ from ..models.quadrotor import QuadrotorParams
 from ..settings import accepts, updated
 from . import kalman
 from .base import (
-    BEYOND_LIMIT,
     AlarmLatch,
-    beyond_limit,
     biquad_constants,
     biquad_step,
+    check_reading,
     check_time,
     missing_reading,
     vehicle_params,
@@ -367,6 +366,4 @@ def scaled_G(G, G_scale, where: str) -> tuple:
 def _reject_non_finite(readings: dict) -> None:
     """Raise a ValueError naming the first reading beyond READING_LIMIT (NaN, inf), as `_sample` rejects it."""
     for key in READINGS:
-        value = np.asarray(readings[key], dtype=float)
-        if beyond_limit(value):
-            raise ValueError(f"loe_kalman: reading {key!r} {BEYOND_LIMIT}: {value.tolist()}")
+        check_reading("loe_kalman", key, readings[key])
