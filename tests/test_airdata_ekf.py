@@ -269,7 +269,7 @@ def phase_rmse(rows) -> dict:
 
 def test_short_flight_airspeed_error():
     """40 s of the mission (take-off, hover, transition, first seconds of cruise) on held-out seed 100, 5 m/s mean
-    wind with light turbulence: measured RMSE 0.45 m/s over 39 s after the start; bound 1.0 (001 Table 5:
+    wind with light turbulence: measured RMSE 0.47 m/s over 39 s after the start; bound 1.0 (001 Table 5:
     overall 1.62, quad mode 1.95)."""
     rows, crashed = fly(100, seconds=40.0)
     assert not crashed and len(rows) > 3000

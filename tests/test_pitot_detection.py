@@ -80,7 +80,7 @@ def test_ramp_alarms_by_norm_at_001s_figure(phase):
 @pytest.mark.parametrize("bias", [-0.2, 0.2])
 def test_an_ekf_reading_low_delays_the_ramp_alarm_by_bias_over_rate(bias):
     """An EKF reading b above the truth lowers r = pitot - EKF by b, so the -2.5 m/s^2 ramp reaches -5.5 m/s
-    b / 2.5 s sooner (b > 0) or later (b < 0); the study's regression over 100 flights gave 0.36 s per m/s."""
+    b / 2.5 s sooner (b > 0) or later (b < 0); the study's regression over 100 flights gave 0.37 s per m/s."""
     t = np.arange(200) / HZ
     ramp = np.where(t < 1.0, 0.0, -2.5 * (t - 1.0))
     shift = run(ramp - bias).alarm_time - run(ramp).alarm_time

@@ -7,6 +7,7 @@ import ftcgym  # noqa: F401  (registers the env ids)
 from ftcgym.benchmark import metrics
 from ftcgym.benchmark.random_wind import RandomMeanWind
 from ftcgym.benchmark.scenarios import get_scenario
+from ftcgym.task_envs.autopilot import QuadPlaneAutopilotEnv
 
 
 def test_mean_wind_is_drawn_per_seed_and_reaches_the_plane():
@@ -25,15 +26,20 @@ def test_mean_wind_is_drawn_per_seed_and_reaches_the_plane():
 
 
 def test_the_drawn_wind_keeps_the_envs_turbulence_airspeed():
-    env = RandomMeanWind(gym.make("ftcgym/QuadPlaneAutopilot-v0", max_episode_seconds=1.0,
-                                  wind={"mean": [0.0, 0.0, 0.0], "turbulence": "light", "airspeed": "vehicle"}))
+    """The drawn mean wind keeps the airspeed setting of the env's own wind: the quad-plane's default ("vehicle")
+    or the one given, through gym.make's spec or, for an env made without one, from the env itself."""
+    env = RandomMeanWind(gym.make("ftcgym/QuadPlaneAutopilot-v0", max_episode_seconds=1.0))
     env.reset(seed=1)
     assert env.unwrapped.plane.wind.follows_vehicle
     env.close()
-    env = RandomMeanWind(gym.make("ftcgym/QuadPlaneAutopilot-v0", max_episode_seconds=1.0))
-    _, info = env.reset(seed=1)
-    wind = env.unwrapped.plane.wind
-    assert not wind.follows_vehicle and wind.airspeed == max(np.linalg.norm(info["mean_wind"]), 1.0)
+    mean_setting = {"mean": [0.0, 0.0, 0.0], "turbulence": "light", "airspeed": "mean"}
+    made = gym.make("ftcgym/QuadPlaneAutopilot-v0", max_episode_seconds=1.0, wind=mean_setting)
+    unmade = QuadPlaneAutopilotEnv(max_episode_seconds=1.0, wind=mean_setting)
+    for env in (RandomMeanWind(made), RandomMeanWind(unmade)):
+        assert env.airspeed == "mean"
+        _, info = env.reset(seed=1)
+        wind = env.unwrapped.plane.wind
+        assert not wind.follows_vehicle and wind.airspeed == max(np.linalg.norm(info["mean_wind"]), 1.0)
     env.close()
 
 

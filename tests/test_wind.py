@@ -250,6 +250,27 @@ def test_follow_floors_rounds_and_belongs_to_a_following_wind():
     assert "'vehicle'" in str(info.value)
 
 
+def test_each_vehicle_has_its_default_airspeed_and_mean_names_the_other():
+    """The quadrotor's turbulence takes the mean wind's speed unless told, the quad-plane's follows the vehicle;
+    `airspeed="mean"` gives the quadrotor's on the quad-plane, also in a reset's own wind."""
+    import gymnasium as gym
+
+    import ftcgym  # noqa: F401  (registers the env ids)
+    light = {"mean": [3.0, 4.0, 0.0], "turbulence": "light"}
+    quadrotor, quadplane = gym.make("ftcgym/Quadrotor-v0", wind=light), gym.make("ftcgym/QuadPlane-v0", wind=light)
+    assert quadrotor.unwrapped.wind.airspeed_setting == "mean" and not quadrotor.unwrapped.wind.follows_vehicle
+    assert quadrotor.unwrapped.wind.airspeed == 5.0
+    assert quadplane.unwrapped.wind.airspeed_setting == "vehicle" and quadplane.unwrapped.wind.follows_vehicle
+    quadplane.reset(seed=0, options={"wind": {**light, "airspeed": "mean"}})
+    assert not quadplane.unwrapped.wind.follows_vehicle and quadplane.unwrapped.wind.airspeed == 5.0
+    quadplane.reset(seed=0, options={"wind": {**light, "airspeed": None}})
+    assert quadplane.unwrapped.wind.follows_vehicle
+    with pytest.raises(ValueError, match="'mean'"):
+        gym.make("ftcgym/QuadPlane-v0", wind={**light, "airspeed": "average"})
+    quadrotor.close()
+    quadplane.close()
+
+
 def test_an_agent_step_longer_than_a_noise_block_is_filtered_at_its_own_speed():
     """follow(v, steps) with steps > 1,024 (a noise block): the winds of one call all at its V_a. The first version
     refilled one block per call, so winds of the old V_a leaked into the next call, more with each."""

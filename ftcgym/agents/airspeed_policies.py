@@ -29,7 +29,7 @@ class AirspeedSwitchPolicy:
     Table 2 thresholds (Sec. 6.1), the CUSUM that Sec. 7.2.2 and 8.1 recommend for incipient faults and the
     ramp-onset GLR (`pitot_detection.RampGlr`), the last two set to the same false-alarm budget. Table 2 alone
     alarms on the -2.5 m/s^2 ramp ~2.45 s after onset, when the reading is ~6 m/s low, and the autopilot flying
-    on it until then rolls past 45 deg in most flights; the CUSUM alarms ~0.7 s sooner, the ramp test ~1.7 s
+    on it until then rolls past 45 deg in most flights; the CUSUM alarms ~0.7 s sooner, the ramp test ~1.5 s
     sooner. Measured on tuning flights; see docs/measurements.md, 'Tuning record: agents/airspeed_policies.py'
     and 'Tuning record: fdd/pitot_detection.py'.
     """

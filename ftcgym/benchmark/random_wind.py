@@ -3,7 +3,8 @@
 The env's `wind` kwarg is one fixed mean; `qp-no-fault-long` wants many flights in different winds to count
 false alarms. `RandomMeanWind` passes each reset the option `wind` with a mean of uniform speed in
 `speed_range` m/s from a uniform direction (horizontal), the given turbulence and the `airspeed` of the env's own
-`wind` kwarg (for example "vehicle"; `models/wind.py`), if it has one. The draw comes from a
+`wind` kwarg (for example "mean"; `models/wind.py`), if it has one, else the vehicle's default (the quad-plane's:
+"vehicle"). The draw comes from a
 generator seeded by the reset seed (SeedSequence([seed, WIND_STREAM])), so an episode seed fixes its wind as
 it fixes everything else; without a seed it comes from the wrapper's own generator.
 """
@@ -12,7 +13,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
-from ftcgym.models.wind import VEHICLE, random_mean_wind
+from ftcgym.models.wind import random_mean_wind
 
 WIND_STREAM = 6006          # separates the wind draw from the env's own stream for the same seed
 
@@ -41,14 +42,14 @@ class RandomMeanWind(gym.Wrapper):
 
 
 def _configured_airspeed(env: gym.Env):
-    """The `airspeed` of the env's own `wind`: as gym.make was given it, else (an env made otherwise, or a wrapper
-    whose spec gymnasium could not copy) "vehicle" if its configured wind follows the vehicle, else None."""
+    """The `airspeed` of the env's own `wind`: as gym.make was given it (None: the vehicle's default), else (an
+    env made otherwise, or a wrapper whose spec gymnasium could not copy) its configured wind's setting."""
     if env.spec is not None:
         return (env.spec.kwargs.get("wind") or {}).get("airspeed")
     flight = env.unwrapped
     flight = getattr(flight, "plane", flight)          # QuadPlaneAutopilot-v0 flies a QuadPlane-v0
     wind = getattr(flight, "wind", None)
-    return VEHICLE if getattr(wind, "follows_vehicle", False) else None
+    return getattr(wind, "airspeed_setting", None)
 
 
 def random_mean_wind_wrapper(env: gym.Env) -> gym.Env:

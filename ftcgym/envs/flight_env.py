@@ -17,7 +17,7 @@ from ..models.compiled import without_dispatch
 from ..models.constants import GRAVITY
 from ..models.quadrotor import SCALE_LIMIT
 from ..models.tasks import make_task
-from ..models.wind import DrydenWind
+from ..models.wind import MEAN, DrydenWind
 from .frames import RAW_EXAMPLE, body_state, step_state
 from .world import PyBulletWorld
 
@@ -58,6 +58,7 @@ class FlightEnv(gym.Env):
     MAX_SPEED = 100.0     # m/s, observation bound on velocities
     CRASH_SPEED = 2.0     # m/s, ground contact faster than this is an impact
     CRASH_TILT = np.deg2rad(60.0)   # rad, ground contact more tilted than this is a crash
+    WIND_AIRSPEED = MEAN  # the Dryden filters' V_a when `wind` names none (models.wind): the mean wind's speed
 
     def _setup(self, vehicle, vehicle_overrides, wind, faults, task, max_episode_seconds, physics_hz, agent_hz,
                render_mode, render_size=RENDER_SIZE, unknown: dict | None = None, info_level: str = "full",
@@ -86,7 +87,7 @@ class FlightEnv(gym.Env):
         # gymnasium's RecordVideo films one frame per step at render_fps: the agent rate makes it real time
         self.metadata = {**self.metadata, "render_fps": _whole(self.agent_hz)}
         self.task = self._check_task(make_task(task))
-        self.wind = self._configured_wind = DrydenWind.from_config(wind, self.dt)
+        self.wind = self._configured_wind = DrydenWind.from_config(wind, self.dt, self.WIND_AIRSPEED)
         self.fault_specs = self._configured_faults = self._parse_faults(faults)
         self._check_faults(self.params, self.fault_specs)
 
@@ -159,7 +160,8 @@ class FlightEnv(gym.Env):
         try:   # all checked before any is installed: a refused reset leaves the env as it was
             params = (self._make_params(self.vehicle, options["vehicle_overrides"]) if "vehicle_overrides" in options
                       else self._configured_params)
-            wind = DrydenWind.from_config(options["wind"], self.dt) if "wind" in options else self._configured_wind
+            wind = (DrydenWind.from_config(options["wind"], self.dt, self.WIND_AIRSPEED) if "wind" in options
+                    else self._configured_wind)
             fault_specs = self._parse_faults(options["faults"]) if "faults" in options else self._configured_faults
             self._check_faults(params, fault_specs)
         except ValueError as error:

@@ -21,6 +21,11 @@ Reward per agent step: 1 - 0.5 (1 - cos tilt) - 0.01 min(|p - p_ref|, 50), and -
 body z axis from vertical). Terminated on a crash (ground contact faster than 3 m/s or tilted more than 60
 deg, or leaving the box |north|, |east| <= 2 km, altitude <= 1 km); truncated after `max_episode_seconds`.
 The episode starts at rest on the ground at home, motors stopped, nose into the mean wind (north in calm air).
+
+Wind: `wind={"mean", "turbulence", "airspeed"}` (`models.wind`). Unless `airspeed` says otherwise, the Dryden
+filters' reference airspeed follows the vehicle's speed through the mean wind (`"vehicle"`): MIL-F-8785C's
+spectra are per metre flown, so a quad-plane cruising at 18 m/s meets its gusts 18 times as fast as at 1 m/s.
+`airspeed="mean"` gives the quadrotor's default, the mean wind's speed.
 """
 from __future__ import annotations
 
@@ -47,6 +52,7 @@ from ..models.sensors import (
     advance_phase,
 )
 from ..models.vsqp import make_vsqp_params
+from ..models.wind import VEHICLE
 from .action_space import ActionBox
 from .flight_env import PHYSICS_HZ, RENDER_SIZE, FlightEnv, check_action
 from .frames import RAW_EXAMPLE, body_state, to_bullet
@@ -80,6 +86,7 @@ class QuadPlaneEnv(FlightEnv):
     # from the last step's state (explicit), which is stable only for steps under twice that: 100 Hz diverged
     # open-loop at 22 m/s; 250 Hz keeps a margin to about 50 m/s.
     PHYSICS_HZ = Range(250.0, PHYSICS_HZ.high)
+    WIND_AIRSPEED = VEHICLE   # Dryden V_a = the speed through the mean wind: cruise's gust bandwidth in cruise
 
     def __init__(self, vehicle: str = "vsqp", vehicle_overrides: dict | None = None, wind: dict | None = None,
                  faults=None, task="mission", max_episode_seconds: float = 240.0, physics_hz: float = 500.0,

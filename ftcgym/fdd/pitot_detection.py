@@ -81,7 +81,7 @@ CUSUM_DEFAULT = CusumTest(1.0, 1.9, 0.5)
 #: The ramp-onset GLR (`RampGlr`): threshold on z, sigma (the pitot's noise, `models/sensors.py`), reference
 #: and horizon (s). Set on fault-free tuning flights; see docs/measurements.md, 'Tuning record:
 #: fdd/pitot_detection.py'.
-RAMP_DEFAULT = RampTest(17.0, 0.3, 3.0, 2.0)
+RAMP_DEFAULT = RampTest(20.0, 0.3, 3.0, 2.0)
 #: m/s, the EKF forward airspeed below which the ramp test does not run: the end of the transition (14.5 m/s,
 #: `vsqp.py`). Near hover the simulated pitot reads its floor (forward flow only, clipped at 0) and the residual is
 #: not the Gaussian the GLR assumes; in the transitions the EKF's model errs most. Table 2 and the CUSUM still

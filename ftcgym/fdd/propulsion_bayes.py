@@ -11,8 +11,8 @@ Per sample (`update`):
        k_e mean(I_e) - Theta (omega_end - omega_start) / T = mean(C) x,  C = [Q_a*(omega, V), omega, k_e]
    (eq. 9-11 with the erratum of docs/references.md: y = k_e I_e - Theta omega_dot). Departure: eq. (10) drops
    Theta omega_dot; our pusher is run by an airspeed loop, not a speed governor, and in light turbulence
-   omega swings by +-60 rad/s within seconds (Theta omega_dot ~ 0.03 N m, far above a 10% friction
-   fault, ~0.001 N m), so the term is kept, from the speeds at the block's boundaries, each estimated from the
+   omega swings by +-70-80 rad/s within 3 s of cruise (Theta omega_dot up to ~0.1 N m, far above a 10%
+   friction fault, ~0.001 N m), so the term is kept, from the speeds at the block's boundaries, each estimated from the
    samples around it (`_BlockAverager`): one noisy sample per boundary put ~5e-4 N m on Theta omega_dot.
 2. Calibration (departure): the detector's model errs by `coefficient_error` on C_Q, k_e, Theta,
    c_v* and I_0*. A 10% error in k_e alone shifts y by more than the static-friction fault, so a detector
@@ -29,7 +29,7 @@ Per sample (`update`):
    return, which here confuses the friction modes):
    (a) after the alarm it waits for the fault to develop (Sec. III-E: not before the KFs have stabilized):
    every KF's mean over the last `develop_window` s has moved by < `develop_ratio` of its distance from x*
-   since the window before, or `max_develop` s have passed. An icing alarm comes ~15 s into a 50 s ramp,
+   since the window before, or `max_develop` s have passed. An icing alarm comes 15-30 s into a 50 s ramp,
    and static models sampled on the ramp pick the wrong mode. (b) Step 1 and 3: +`perturbation` m/s
    (`airspeed_request`) for `level_seconds`, then the cruise airspeed for `level_seconds`; every valid
    sample from the last develop window on, the steps included (eq. 1 in integral form holds there too), is

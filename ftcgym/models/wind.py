@@ -20,8 +20,8 @@ along NED axes aligned with the mean wind: u along the mean wind's horizontal di
 the mean wind is ~horizontal-calm), v horizontal and 90 deg clockwise from u seen from above (east
 when u is north), w down. This keeps the wind a function of time only, independent of attitude.
 
-V_a is the reference airspeed in the filters. Default: max(|mean wind|, 1 m/s): a hovering vehicle's
-airspeed is the wind speed, and the 1 m/s floor keeps the time constants L/V_a finite. A number fixes it.
+V_a is the reference airspeed in the filters. `airspeed="mean"` (or None): max(|mean wind|, 1 m/s): a hovering
+vehicle's airspeed is the wind speed, and the 1 m/s floor keeps the time constants L/V_a finite. A number fixes it.
 `airspeed="vehicle"` makes V_a the vehicle's speed through the mean wind, |v - mean| (floor 1 m/s, in steps of
 0.1 m/s), which the env gives once per agent step (`follow`): a quad-plane meets its cruise's turbulence
 bandwidth in cruise and its hover's in hover. A V_a that changes calls for the filters in space rather than
@@ -68,6 +68,7 @@ _BLOCK = 1024          # noise steps drawn per refill: amortises the rng/matmul 
 _CHUNK = 64            # steps filtered per compiled call (`DrydenWind._turbulent_winds`)
 _CALM_HORIZONTAL = 1e-9  # m/s; below this the mean wind has no direction and u points north
 VEHICLE = "vehicle"      # `airspeed`: V_a follows the vehicle's speed through the mean wind
+MEAN = "mean"            # `airspeed`: V_a is the mean wind's speed (the default of `DrydenWind`)
 _MIN_AIRSPEED = 1.0      # m/s, V_a's floor: keeps L/V_a finite
 
 
@@ -165,11 +166,13 @@ class DrydenWind:
             raise ValueError(f"wind mean: its speed must be <= {MAX_MEAN_WIND:g} m/s, got {mean!r}")
         sigmas, lengths = _parse_turbulence(turbulence)
         self._sigmas, self._lengths = _readonly(sigmas), _readonly(lengths)
-        self.follows_vehicle = isinstance(airspeed, str)
-        if self.follows_vehicle and airspeed != VEHICLE:
-            raise ValueError(f"wind airspeed: got {airspeed!r}; accepted: a number {_AIRSPEED} m/s, "
-                             f"{VEHICLE!r} or None (the mean wind's speed, at least {_MIN_AIRSPEED:g} m/s)")
-        if airspeed is None or self.follows_vehicle:
+        if isinstance(airspeed, str) and airspeed not in (VEHICLE, MEAN):
+            raise ValueError(f"wind airspeed: got {airspeed!r}; accepted: a number {_AIRSPEED} m/s, {VEHICLE!r} "
+                             f"(the vehicle's speed through the mean wind) or {MEAN!r} (the mean wind's speed, at "
+                             f"least {_MIN_AIRSPEED:g} m/s)")
+        self.follows_vehicle = airspeed == VEHICLE
+        self.airspeed_setting = MEAN if airspeed is None else airspeed   # as given: "vehicle", "mean" or m/s
+        if airspeed is None or isinstance(airspeed, str):
             airspeed = max(float(np.linalg.norm(self._mean)), _MIN_AIRSPEED)
             if self.follows_vehicle:
                 airspeed = _rounded(airspeed)
@@ -232,13 +235,16 @@ class DrydenWind:
             self._set_speed(rounded)
 
     @classmethod
-    def from_config(cls, config: dict | None, dt: float) -> DrydenWind:
-        """Build from the env's `wind` kwarg: None/{} -> calm; keys "mean", "turbulence", "airspeed"."""
+    def from_config(cls, config: dict | None, dt: float, default_airspeed=MEAN) -> DrydenWind:
+        """Build from the env's `wind` kwarg: None/{} -> calm; keys "mean", "turbulence", "airspeed" (absent or
+        None: `default_airspeed`, the vehicle's choice)."""
         if config is None:
             config = {}
         if not isinstance(config, dict):
             raise ValueError(f"wind config: expected a dict with keys {list(CONFIG_KEYS)} or None, got {config!r}")
         no_unknown(config, CONFIG_KEYS, "wind config key")
+        if config.get("airspeed") is None:
+            config = {**config, "airspeed": default_airspeed}
         return cls(dt, **config)
 
     def reset(self, rng: np.random.Generator) -> np.ndarray:

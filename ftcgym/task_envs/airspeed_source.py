@@ -25,8 +25,8 @@ residual r = pitot - EKF forward airspeed with the Table 2 alarm (Sec. 6.1) and 
 - Domain randomisation (drawn per episode from the env's seeded RNG): the fault kind from `fault_mix`
   ({"none", "zero", "stuck", "incipient"}: weights), the incipient rate (m/s^2, `incipient_rate`; 001
   Sec. 7.2.2 uses 2.5), the onset time (`onset`, s: in cruise for the default mission, whose cruise starts
-  at ~28 s and ends at ~80 s), and the mean wind: speed uniform in `wind_speed` m/s (the autopilot's
-  envelope is ~0-6 m/s with light turbulence), direction uniform, with `turbulence`.
+  at ~28 s and ends at ~80 s), and the mean wind: speed uniform in `wind_speed` m/s (default 0-6 m/s; the
+  autopilot flies mean winds up to 9 m/s in light turbulence), direction uniform, with `turbulence`.
 """
 from __future__ import annotations
 
