@@ -70,6 +70,7 @@ class ParallelVectorEnv(VectorEnv):
         workers = _worker_count(workers, self.num_envs)
         bounds = np.linspace(0, self.num_envs, workers + 2).round().astype(int)
         self._shares = [range(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
+        self._starts = [share.start for share in self._shares[1:]]     # each worker's first env
         own = self._shares[0]
         self._own = _Share([env_fns[k] for k in own], own, self.autoreset_mode)
         first = self._own.envs[0]
@@ -101,8 +102,13 @@ class ParallelVectorEnv(VectorEnv):
         return obs, self._batched(infos)
 
     def step(self, actions):
-        obs, rewards, terminations, truncations, infos = self.step_each(actions)
-        return obs, rewards, terminations, truncations, self._batched(infos)
+        *results, answers = self._step(actions)
+        infos = {}
+        for start, share_infos in answers:       # Gymnasium's batched info; most steps have none
+            for k, info in enumerate(share_infos or (), start):
+                if info:
+                    infos = self._add_info(infos, info, k)
+        return (*results, infos)
 
     def reset_each(self, *, seed: int | list | None = None, options: dict | None = None):
         """`reset` with the infos as a list, one dict per env (Stable-Baselines3's form)."""
@@ -116,17 +122,31 @@ class ParallelVectorEnv(VectorEnv):
 
     def step_each(self, actions):
         """`step` with the infos as a list, one dict per env (Stable-Baselines3's form)."""
-        self._check_open("step")
+        *results, answers = self._step(actions)
+        infos = []
+        for (_, share_infos), share in zip(answers, self._shares):
+            infos.extend(share_infos or [{} for _ in share])
+        return (*results, infos)
+
+    def _step(self, actions):
+        """One step of every env: the batched observations, rewards and flags, and per share (start index,
+        its infos or None where a worker sent none)."""
+        if self.closed:
+            self._check_open("step")
+        shared = self._shared
         try:
-            _copy_batch(self.single_action_space, self._shared.action_view, actions)
+            _copy_batch(self.single_action_space, shared.action_view, actions)
         except ValueError as error:          # numpy's broadcast message, which does not say what it was copying
             raise ValueError(f"actions: expected a batch of {self.num_envs} actions of shape "
                              f"{self.single_action_space.shape} ({self.action_space.shape}); {error}") from None
         for worker in self._workers:
             worker.order(STEP)
-        infos = self._gather(self._own_part(self._own.step, self._shared))
-        s = self._shared
-        return self._observations_out(), s.rewards.copy(), s.terminations.copy(), s.truncations.copy(), infos
+        answers = [(0, self._own_part(self._own.step, shared))]
+        if self._workers:
+            answers += zip(self._starts, self._answers())
+        observations = deepcopy(self._observations) if self.copy else self._observations
+        return (observations, shared.rewards.copy(), shared.terminations.copy(), shared.truncations.copy(),
+                answers)
 
     def call(self, name, *args, **kwargs) -> tuple:
         """`getattr(env, name)` of every env, called with the arguments where it is callable; `name` may also
@@ -217,7 +237,7 @@ class ParallelVectorEnv(VectorEnv):
         sent none)."""
         infos = list(own or [])
         for answer, share in zip(self._answers(), self._shares[1:]):
-            infos.extend(answer or [{}] * len(share))
+            infos.extend(answer or [{} for _ in share])
         return infos
 
 
@@ -273,14 +293,14 @@ def _seeds(seed, num_envs: int) -> list:
 
 def _copy_batch(space, view, batch) -> None:
     """Copy a batch of `space` into its shared view (Dict and Tuple batches are dicts and tuples of batches)."""
-    if isinstance(space, spaces.Dict):
+    if type(view) is np.ndarray:
+        view[...] = batch
+    elif isinstance(space, spaces.Dict):
         for key, sub in space.spaces.items():
             _copy_batch(sub, view[key], batch[key])
     elif isinstance(space, spaces.Tuple):
         for sub, part, value in zip(space.spaces, view, batch):
             _copy_batch(sub, part, value)
-    else:
-        view[...] = batch
 
 
 def _writer(space, view, k: int):
@@ -382,6 +402,7 @@ class _Share:
         self._actions = [_item(shared.action_space, shared.action_view, k) for k in self.indices] \
             if isinstance(shared.action_space, spaces.Box) else None
         self._writers = [_writer(shared.observation_space, shared.observation_view, k) for k in self.indices]
+        self._stepping = list(zip(self.indices, self.envs, self._writers))
 
     def reset(self, seeds, options, shared: _Shared) -> list:
         infos = []
@@ -395,22 +416,22 @@ class _Share:
     def step(self, shared: _Shared) -> list:
         if self._bound is not shared:
             self._bind(shared)
-        infos = []
-        for i, (k, env) in enumerate(zip(self.indices, self.envs)):
-            if self._needs_reset[i]:          # next-step autoreset: this step only resets
+        infos, needs_reset, same_step, write_outcome = [], self._needs_reset, self._same_step, shared.write_outcome
+        for i, (k, env, write) in enumerate(self._stepping):
+            if needs_reset[i]:                # next-step autoreset: this step only resets
                 obs, info = env.reset()
                 reward, terminated, truncated = 0.0, False, False
             else:
                 action = self._actions[i] if self._actions is not None else \
                     _item(shared.action_space, shared.action_view, k)
                 obs, reward, terminated, truncated, info = env.step(action)
-                if (terminated or truncated) and self._same_step:
+                if (terminated or truncated) and same_step:
                     final = {"final_obs": obs, "final_info": info}
                     obs, info = env.reset()
                     info = {**info, **final}
-            self._needs_reset[i] = (terminated or truncated) and not self._same_step
-            self._writers[i](obs)
-            shared.write_outcome(k, reward, terminated, truncated)
+            needs_reset[i] = (terminated or truncated) and not same_step
+            write(obs)
+            write_outcome(k, reward, terminated, truncated)
             infos.append(info)
         return infos
 
@@ -523,8 +544,12 @@ def _work(index: int, env_fns, share: range, shared: _Shared, pipe, autoreset_mo
     except Exception:  # noqa: BLE001 - sent to the calling process, which raises it
         answer("error", traceback.format_exc())
     done.release()
+
+    def parent_alive() -> bool:
+        return os.getppid() == parent
+
     while envs is not None:
-        if not _wait(go, spin_seconds, lambda: os.getppid() == parent):
+        if not _wait(go, spin_seconds, parent_alive):
             break                        # the calling process is gone
         command = shared.command(index)
         if command == CLOSE:

@@ -63,6 +63,18 @@ def test_flat_observations_without_info_match_too():
                     info_level="none") >= 4
 
 
+def test_infos_of_a_silent_worker_are_one_fresh_dict_per_env():
+    envs = make_parallel(QUADROTOR, num_envs=4, workers=1, info_level="none", **FAST)   # two envs each
+    try:
+        envs.reset(seed=0)
+        assert [len(share) for share in envs._shares] == [2, 2]
+        *_, infos = envs.step_each(np.full((4, 4), 0.6, dtype=np.float32))
+        assert infos == [{}] * 4 and len({id(info) for info in infos}) == 4
+        assert envs.step(np.full((4, 4), 0.6, dtype=np.float32))[4] == {}
+    finally:
+        envs.close()
+
+
 def test_in_process_only_and_make_vec_default():
     envs = gym.make_vec(QUADROTOR, num_envs=2, workers=0, **FAST)
     try:
