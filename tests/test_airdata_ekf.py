@@ -144,6 +144,39 @@ def test_gnss_fault_detected_isolated_and_rolled_back():
     assert np.linalg.norm(hover_with_gnss_jump(innovation_detectors=no_rollback).x[3:]) > 1.0
 
 
+def hover_landing_with_a_jolt(**kwargs):
+    """Hover 5 m up until 25 s, descend at 1.5 m/s (the missions' landing speed) to touch down at 28.33 s with a
+    0.1 s jolt of 30 m/s^2 (back and up) in the specific force, stay down until 30 s, then climb back at 1.5 m/s.
+    Returns the detector and, per sample, (time, height, whether the tests are armed)."""
+    det = AirdataEkfDetector(VSQP, 100.0, **kwargs)
+    base, touchdown, rows = hover_readings(det), 25.0 + 5.0 / 1.5, []
+    for k in range(3400):
+        t = 0.01 * k
+        height = (0.0 if t < 0.2 else 5.0 if t < 25.0 else max(5.0 - 1.5 * (t - 25.0), 0.0) if t < 30.0
+                  else min(1.5 * (t - 30.0), 5.0))
+        jolt = 30.0 if touchdown <= t < touchdown + 0.1 else 0.0
+        det.update({**base, "position": np.array([0.0, 0.0, -height]),
+                    "accel": np.array([-jolt, 0.0, -9.81 - jolt])}, t)
+        rows.append((t, height, det.status()["detection_armed"]))
+    return det, rows
+
+
+def test_the_tests_stop_at_touchdown_and_resume_in_the_air():
+    """The landing gate (`landing_gate`, a departure from 001): the take-off gate's 1 m, averaged over 0.2 s,
+    closes 0.1 s late, at 0.85 m on the way down, so the touchdown's jolt raises nothing; without the gate it
+    is a Table 2 derivative alarm. Climbing again, the tests arm again at the same height."""
+    det, rows = hover_landing_with_a_jolt()
+    status = det.status()
+    assert status["alarm_time"] is None and status["innovation_alarms"] == {"gnss": None, "pusher_rpm": None}
+    disarmed = [(t, h) for t, h, armed in rows if t > 21.0 and not armed]
+    assert 27.7 <= disarmed[0][0] <= 27.85 and 0.75 <= disarmed[0][1] <= 0.95       # closed 0.85 m up
+    assert 30.7 <= disarmed[-1][0] <= 30.8 and rows[-1][2]                           # open again 1.1 m up
+    det, _ = hover_landing_with_a_jolt(landing_gate=False)
+    status = det.status()
+    assert status["isolated"] == "pitot" and status["table2_criterion"] == "derivative"
+    assert 28.33 <= status["alarm_time"] <= 28.6
+
+
 def hover_with_thrust_deficit(**kwargs):
     """25 s of still hover whose rotors, by the detector's model, give 10% less thrust than the measured a_z (a
     hover thrust coefficient 10% low, as `error_seed` 2 draws it)."""

@@ -18,7 +18,11 @@ TU Delft 2023 (001). Pipeline per sample:
    Initial state 0, P0 = I except the wind states, which start at their Q (Sec. 5.3).
 3. The filter starts once airborne (Sec. 5.3): when the height, averaged over the last `takeoff_window` s of
    position readings, stands `takeoff_height` above its average over the first `takeoff_window` s
-   (`TakeoffGate`).
+   (`TakeoffGate`). Departure: by the same gate the tests (4-6) stop while the vehicle is back below that
+   height (`landing_gate`). 001 waits for the take-off because ground-generated forces are not in its model
+   (Sec. 5.3); the same holds at touchdown, where 001 does not stop: the contact jolts the accelerometers, and
+   the EKF's model airspeed with them, by several m/s within 0.1 s, which Table 2's derivative criterion read as
+   a pitot fault at the end of a fault-free mission (docs/measurements.md, 'The tests stop at touchdown').
 4. Pitot fault detection (Sec. 6.1, Table 2; `pitot_detection.PitotResidualDetector`): at each EKF step the
    residual r = pitot reading - EKF airspeed is low-passed at 5 Hz and thresholded by the norm criterion
    (5.5 m/s for 0.25 s) and the derivative criterion (25 m/s^2 for 0.12 s); on either the alarm latches with
@@ -491,8 +495,9 @@ def _ekf_step(s, state, constants, elapsed):  # pragma: no cover (compiled)
 
 class TakeoffGate:
     """001 Sec. 5.3 starts the EKF once airborne. `gate(z)` (position down, m, one reading per call) is True
-    once the height averaged over the last `window` s of readings stands `height` m above its average over
-    the first `window` s (the ground). Both are averages because the quad-plane's navigation position carries
+    while the height averaged over the last `window` s of readings stands `height` m above its average over
+    the first `window` s (the ground): from the take-off on, and no longer once the vehicle is back down
+    (`AirdataEkfSettings.landing_gate`). Both are averages because the quad-plane's navigation position carries
     0.3 m of white noise (sampled at 50 Hz): a single reading against the first one opens the gate on that
     noise, sometimes on the ground (docs/measurements.md, 'Tuning record: fdd/airdata_ekf.py'). Over 0.2 s
     (10 position samples) the difference of the two averages has a noise of ~0.13 m, 1/7 of the 1 m height;
@@ -510,6 +515,15 @@ class TakeoffGate:
 
     def __call__(self, z: float) -> bool:
         self._recent.append(z)
+        return self.airborne
+
+    def add(self, z: float) -> None:
+        """A reading, the gate asked later (`airborne`)."""
+        self._recent.append(z)
+
+    @property
+    def airborne(self) -> bool:
+        """Whether the gate stands open on the readings so far."""
         if len(self._recent) < self._recent.maxlen:
             return False
         level = sum(self._recent) / len(self._recent)
@@ -532,6 +546,7 @@ class AirdataEkfSettings:
     wind_boost_seconds: float = WIND_BOOST_SECONDS   # ... for this long after the start (001 Sec. 5.4)
     takeoff_height: float = 1.0                # m the averaged height must rise before the EKF starts (`TakeoffGate`)
     takeoff_window: float = 0.2                # s, the averaging window of the take-off gate
+    landing_gate: bool = True                  # the tests stop while the gate is closed again (a departure)
     coefficient_error: float = 0.10            # the detector's model error on ERROR_COEFFICIENTS (`model_with_error`)
     error_seed: int | None = None              # None: every coefficient 1 + error; else seeded signs
     velocity_key: str = "gnss_velocity"        # the GNSS velocity reading
@@ -592,6 +607,7 @@ class AirdataEkfDetector:
         self.R = np.diag(np.asarray(s.R, dtype=float))
         self.wind_boost, self.wind_boost_seconds = float(s.wind_boost), float(s.wind_boost_seconds)
         self.takeoff, self.velocity_key = TakeoffGate(s.takeoff_height, s.takeoff_window, sample_hz), s.velocity_key
+        self.landing_gate = bool(s.landing_gate)
         self._keys = ("accel", "gyro", "attitude", self.velocity_key, "pusher_speed", "hover_rotor_speed", "skew")
         self._ba = butterworth_prefilter(sample_hz, s.prefilter_hz)
         self._lowpass = biquad_constants(*self._ba)
@@ -721,10 +737,10 @@ class AirdataEkfDetector:
         except KeyError:
             self._pusher_current(readings)                    # names a missing pusher current
             raise
-        # the pitot and, before the start, the height (NaN is below no height: it would read as still on the
+        # the pitot and, while the gate reads it, the height (NaN is below no height: it would read as on the
         # ground) are checked first, so that a refused sample changes nothing
         pitot = _first(readings[self.pitot_key]) if self.pitot_key in readings else None
-        down = None if self.started else float(readings["position"][2])
+        down = float(readings["position"][2]) if self.landing_gate or not self.started else None
         for key, value in ((self.pitot_key, pitot), ("position", down)):
             if value is not None and not abs(value) <= READING_LIMIT:
                 raise ValueError(f"airdata_ekf: reading {key!r} {BEYOND_LIMIT} at t = {time}: "
@@ -741,8 +757,12 @@ class AirdataEkfDetector:
                 return
             self.started, self.start_time, self._next_time = True, float(time), float(time)
             self._status = None
+        elif down is not None:
+            self.takeoff.add(down)
         if time + 1e-9 >= self._next_time:
             self._next_time += self.dt
+            if down is not None:                # the landing gate (module docstring, 3), read at the EKF's rate
+                self._detect[LANDED] = 0.0 if self.takeoff.airborne else 1.0
             self._ekf(time)
             self._status = None
 
@@ -807,7 +827,7 @@ class AirdataEkfDetector:
 
     @property
     def _armed(self) -> bool:
-        """Whether the tests are armed (`detection_delay` s after the start)."""
+        """Whether the tests are armed (`detection_delay` s after the start, while airborne)."""
         return bool(self._detect[ARMED])
 
     @property
@@ -1057,9 +1077,9 @@ def _prepare_arrays(run, lowpass, checks, check_constants, accel, gyro, attitude
 
 
 #: `AirdataEkfDetector._detect`: whether the tests are armed, the raw pitot residual, whether an innovation alarm
-#: has latched; then its constants: the detection delay, 1.0 for 001's residual (|V|) and the ramp test's least
-#: forward airspeed
-ARMED, RESIDUAL, LATCHED, DETECTION_DELAY, AIRSPEED_REFERENCE, RAMP_MIN_AIRSPEED, DETECT_SIZE = range(7)
+#: has latched, whether the landing gate holds the tests (set by `update`); then its constants: the detection
+#: delay, 1.0 for 001's residual (|V|) and the ramp test's least forward airspeed
+ARMED, RESIDUAL, LATCHED, LANDED, DETECTION_DELAY, AIRSPEED_REFERENCE, RAMP_MIN_AIRSPEED, DETECT_SIZE = range(8)
 #: `_ekf_detect`'s answer besides 0 (done)
 INNOVATION_HITS = 1
 
@@ -1069,12 +1089,12 @@ def _ekf_detect(s, state, constants, elapsed, time, pitot, has_pitot, detect, in
                 innovation_constants, confirmation_states, confirmation_constants, hits, pitot_states,
                 pitot_constants, published):  # pragma: no cover (compiled)
     """One EKF step on the filtered sample `s` (`_ekf_step`, `elapsed` s after the start) and the tests on it: armed
-    `detection_delay` s after the start; the pitot residual r = pitot - EKF airspeed (Sec. 6.1, `has_pitot`); the
-    innovation tests (`innovation_bank`, Sec. 6.2); then, unless one of their criteria fired (INNOVATION_HITS:
-    the caller latches the alarm and runs the pitot tests), the pitot tests (`_pitot_tests`) and the outputs
-    (`_publish`). The pitot reading was checked by `update`."""
+    `detection_delay` s after the start and while not `LANDED`; the pitot residual r = pitot - EKF airspeed
+    (Sec. 6.1, `has_pitot`); the innovation tests (`innovation_bank`, Sec. 6.2); then, unless one of their criteria
+    fired (INNOVATION_HITS: the caller latches the alarm and runs the pitot tests), the pitot tests (`_pitot_tests`)
+    and the outputs (`_publish`). The pitot reading was checked by `update`."""
     _ekf_step(s, state, constants, elapsed)
-    armed = elapsed >= detect[DETECTION_DELAY] - 1e-9
+    armed = elapsed >= detect[DETECTION_DELAY] - 1e-9 and detect[LANDED] == 0.0
     detect[ARMED] = armed
     residual = pitot - _pitot_reference(state, detect) if has_pitot else math.nan
     innovation_bank(state[INNOVATION], time, armed, residual, innovation_states, innovation_constants,
