@@ -47,8 +47,15 @@ def test_masked_sample_is_box_s():
         space.sample(mask=np.ones(4))
 
 
-def test_batched_space_of_a_vector_env_is_a_box():
-    vec = gym.vector.SyncVectorEnv([lambda: gym.make("ftcgym/Quadrotor-v0")] * 2)
-    assert isinstance(vec.action_space, spaces.Box) and vec.action_space.shape == (2, 4)
-    assert vec.action_space.contains(vec.action_space.sample())
+@pytest.mark.parametrize("vectorization_mode", ["sync", "vector_entry_point"])
+def test_a_vector_env_s_batched_space_is_an_action_box_drawing_box_s_batch(vectorization_mode):
+    """Gymnasium batches a space with `batch_space` (SyncVectorEnv, AsyncVectorEnv, ftcgym's parallel vector env):
+    a batch of ActionBoxes is one ActionBox, which draws the values of Box's batch (`_batch_action_box`)."""
+    vec = gym.make_vec("ftcgym/Quadrotor-v0", num_envs=3, vectorization_mode=vectorization_mode)
+    space = vec.action_space
+    box = gym.vector.utils.batch_space(spaces.Box(0.0, 1.0, (4,), np.float32), 3)
+    assert isinstance(space, ActionBox) and space.shape == (3, 4) and np.array_equal(space.low, box.low)
+    space.seed(5)
+    box.seed(5)
+    assert all(np.array_equal(space.sample(), box.sample()) for _ in range(500))
     vec.close()

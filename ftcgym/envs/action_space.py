@@ -1,8 +1,11 @@
 """`ActionBox`: the action space of every ftcgym env, a `gymnasium.spaces.Box` whose `sample` is cheap."""
 from __future__ import annotations
 
+from copy import deepcopy
+
 import numpy as np
 from gymnasium import spaces
+from gymnasium.vector.utils import batch_space
 
 
 class ActionBox(spaces.Box):
@@ -26,3 +29,12 @@ class ActionBox(spaces.Box):
         if mask is not None or probability is not None:
             return super().sample(mask, probability)
         return self.np_random.uniform(self._uniform_low, self._uniform_high, self.shape).astype(self.dtype)
+
+
+@batch_space.register(ActionBox)
+def _batch_action_box(space: ActionBox, n: int = 1) -> ActionBox:
+    """The action space of a vector env of `n` such envs: Gymnasium's batch of a Box (the bounds tiled, a copy of
+    the generator), as an `ActionBox`, so that sampling a batch stays cheap and draws Box's values."""
+    repeats = (n,) + (1,) * space.low.ndim
+    return ActionBox(np.tile(space.low, repeats), np.tile(space.high, repeats), dtype=space.dtype,
+                     seed=deepcopy(space.np_random))
