@@ -99,16 +99,11 @@ class ParallelVectorEnv(VectorEnv):
     def reset(self, *, seed: int | list | None = None, options: dict | None = None):
         """Reset every env: `seed` an int (env i gets seed + i), a list of one per env, or None."""
         obs, infos = self.reset_each(seed=seed, options=options)
-        return obs, self._batched(infos)
+        return obs, self._batched([(0, infos)])
 
     def step(self, actions):
         *results, answers = self._step(actions)
-        infos = {}
-        for start, share_infos in answers:       # Gymnasium's batched info; most steps have none
-            for k, info in enumerate(share_infos or (), start):
-                if info:
-                    infos = self._add_info(infos, info, k)
-        return (*results, infos)
+        return (*results, self._batched(answers))
 
     def reset_each(self, *, seed: int | list | None = None, options: dict | None = None):
         """`reset` with the infos as a list, one dict per env (Stable-Baselines3's form)."""
@@ -144,9 +139,8 @@ class ParallelVectorEnv(VectorEnv):
         answers = [(0, self._own_part(self._own.step, shared))]
         if self._workers:
             answers += zip(self._starts, self._answers())
-        observations = deepcopy(self._observations) if self.copy else self._observations
-        return (observations, shared.rewards.copy(), shared.terminations.copy(), shared.truncations.copy(),
-                answers)
+        return (self._observations_out(), shared.rewards.copy(), shared.terminations.copy(),
+                shared.truncations.copy(), answers)
 
     def call(self, name, *args, **kwargs) -> tuple:
         """`getattr(env, name)` of every env, called with the arguments where it is callable; `name` may also
@@ -201,12 +195,14 @@ class ParallelVectorEnv(VectorEnv):
     def _observations_out(self):
         return deepcopy(self._observations) if self.copy else self._observations
 
-    def _batched(self, env_infos: list) -> dict:
-        """Gymnasium's batched info of the per-env infos."""
+    def _batched(self, answers: list) -> dict:
+        """Gymnasium's batched info of the per-env infos, given per share as (its first env, its infos or None);
+        most steps have none."""
         infos = {}
-        for k, info in enumerate(env_infos):
-            if info:
-                infos = self._add_info(infos, info, k)
+        for start, share_infos in answers:
+            for k, info in enumerate(share_infos or (), start):
+                if info:
+                    infos = self._add_info(infos, info, k)
         return infos
 
     def _own_part(self, work, *args):
