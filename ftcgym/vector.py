@@ -118,10 +118,7 @@ class ParallelVectorEnv(VectorEnv):
     def step_each(self, actions):
         """`step` with the infos as a list, one dict per env (Stable-Baselines3's form)."""
         *results, answers = self._step(actions)
-        infos = []
-        for (_, share_infos), share in zip(answers, self._shares):
-            infos.extend(share_infos or [{} for _ in share])
-        return (*results, infos)
+        return (*results, self._per_env([share_infos for _, share_infos in answers]))
 
     def _step(self, actions):
         """One step of every env: the batched observations, rewards and flags, and per share (start index,
@@ -229,11 +226,15 @@ class ParallelVectorEnv(VectorEnv):
         return answers
 
     def _gather(self, own: list | None = None) -> list:
-        """Wait for every worker; the infos of every env, this process's `own` first (empty where a worker
-        sent none)."""
-        infos = list(own or [])
-        for answer, share in zip(self._answers(), self._shares[1:]):
-            infos.extend(answer or [{} for _ in share])
+        """Wait for every worker; the infos of every env, this process's `own` first (`_per_env`)."""
+        return self._per_env([own, *self._answers()])
+
+    def _per_env(self, share_infos: list) -> list:
+        """The infos of every env from each share's list of infos (None where a worker sent none: a fresh empty
+        dict per env)."""
+        infos = []
+        for part, share in zip(share_infos, self._shares):
+            infos.extend(part or [{} for _ in share])
         return infos
 
 

@@ -514,7 +514,7 @@ class TakeoffGate:
         self.ground = None
 
     def __call__(self, z: float) -> bool:
-        self._recent.append(z)
+        self.add(z)
         return self.airborne
 
     def add(self, z: float) -> None:
