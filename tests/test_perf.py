@@ -29,8 +29,11 @@ def test_perf_json_names_its_fields(capsys):
                            "detector_us_per_step", "detector_budget_us"}
     assert set(report["machine"]) == {"cpu", "cores", "load_average", "python", "numpy", "pybullet", "gymnasium",
                                       "numba"}
-    assert set(report["vector"]["steps_per_s"]) == {"one", "sync", "async", "parallel", "independent"}
-    assert all(rate > 0 for rate in report["vector"]["steps_per_s"].values())
+    assert [row["agent_hz"] for row in report["vector"]] == [500.0, 50.0]
+    for row in report["vector"]:
+        assert set(row["steps_per_s"]) == {"one", "sync", "async", "parallel", "independent"}
+        assert all(rate > 0 for rate in row["steps_per_s"].values())
+        assert set(row["ratio_to_one_env"]) == {"sync", "async", "parallel", "independent"}
     assert report["detector_budget_us"] == DETECTOR_BUDGET_US == 18.0
     assert set(report["detector_us_per_update"]) == set(report["detector_us_per_step"]) == set(DETECTORS)
     assert {row["case"] for row in report["env"]} >= {"Quadrotor random, 500/500 Hz", "QuadPlane autopilot, 500/100 Hz",

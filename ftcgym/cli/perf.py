@@ -6,7 +6,9 @@ controller in the loop, and for QuadPlane-v0 with random actions (500 Hz physics
 with the mission autopilot, both with resets included and step time only; mean reset time; peak resident memory
 and its growth over the run (a leak check); and the cost of one update of each fault detector, alone and with the
 outputs and status its wrapper reads every step (Strack van Schijndel et al. 2023 report 18 us per step on a
-Cortex-A9 in C++, the budget the table marks). Sensors, Dryden wind and a fault schedule are on in every case.
+Cortex-A9 in C++, the budget the table marks); and how two envs scale in a vector env (Gymnasium's sync and async,
+ftcgym's parallel, and two independent processes as the machine's ceiling) at a 500 Hz and a 50 Hz agent rate.
+Sensors, Dryden wind and a fault schedule are on in every case.
 
 The reference is a bare PyBullet loop measured in the same run: the ground plane and one box, per physics step
 one force and one torque applied, a step and a state read (position, orientation, velocity), as the envs do.
@@ -23,12 +25,14 @@ import multiprocessing as mp
 import os
 import resource
 import time
+from functools import partial
 
 import gymnasium as gym
 import numpy as np
 
 import ftcgym  # noqa: F401  (registers the ids; imported before measuring so memory growth is the run's)
 from ftcgym.agents import make_policy
+from ftcgym.vector import SPIN_SECONDS
 
 from .common import non_negative_int, positive_int
 
@@ -200,24 +204,28 @@ def _record_flight(env_id: str, steps: int, seed: int):
 
 #: the vector-env rows: Quadrotor-v0's defaults with the learning-code settings, vector envs without copies
 VECTOR_KWARGS = {"observation_format": "flat", "info_level": "none"}
+#: the agent rates of the vector-env rows (Hz): the default, one physics step per env step; and a training rate,
+#: ten physics steps per env step, where the hand-over between processes weighs a tenth as much
+VECTOR_AGENT_HZ = (500.0, 50.0)
 
 
-def vector_scaling(steps: int, seed: int, num_envs: int = 2, rounds: int = 8) -> dict:
+def vector_scaling(steps: int, seed: int, num_envs: int = 2, rounds: int = 8, agent_hz: float = 500.0) -> dict:
     """Aggregate env steps/s of `gym.make_vec` (sync, async and the parallel vector entry point, `num_envs` envs,
-    copy=False) and of one env, random actions, on Quadrotor-v0 with `VECTOR_KWARGS` (resets inside, as
-    autoreset does them); and of `num_envs` independent processes each stepping its own env at once, with no
-    hand-over (`independent`): the machine's own ceiling for any vector env. The five take turns in `rounds`
-    rounds, so a change in the machine's speed hits all alike: rates are medians over the rounds, ratios medians
-    of the ratios within a round."""
+    copy=False) and of one env, random actions, on Quadrotor-v0 with `VECTOR_KWARGS` at `agent_hz` (resets
+    inside, as autoreset does them); and of `num_envs` independent processes each stepping its own env at once,
+    with no hand-over (`independent`): the machine's own ceiling for any vector env. The five take turns in
+    `rounds` rounds, so a change in the machine's speed hits all alike: rates are medians over the rounds, ratios
+    medians of the ratios within a round."""
     rng = np.random.default_rng(seed)
     chunk = max(steps // rounds // num_envs, 1)
     actions = rng.uniform(0.0, 1.0, (chunk, num_envs, 4)).astype(np.float32)
-    one = gym.make(QUADROTOR, **VECTOR_KWARGS)
+    env_kwargs = {**VECTOR_KWARGS, "agent_hz": agent_hz}
+    one = gym.make(QUADROTOR, **env_kwargs)
     one.reset(seed=seed)
     envs = {mode: gym.make_vec(QUADROTOR, num_envs=num_envs, vectorization_mode=mode, vector_kwargs={"copy": False},
-                               **VECTOR_KWARGS) for mode in ("sync", "async")}
+                               **env_kwargs) for mode in ("sync", "async")}
     envs["parallel"] = gym.make_vec(QUADROTOR, num_envs=num_envs, vectorization_mode="vector_entry_point",
-                                    copy=False, **VECTOR_KWARGS)
+                                    copy=False, **env_kwargs)
     for vector_env in envs.values():
         vector_env.reset(seed=seed)
 
@@ -226,7 +234,8 @@ def vector_scaling(steps: int, seed: int, num_envs: int = 2, rounds: int = 8) ->
 
     ctx = mp.get_context()
     pipes = [ctx.Pipe() for _ in range(num_envs - 1)]
-    others = [ctx.Process(target=_independent_env, args=(child, seed + k + 1, actions[:, k + 1]), daemon=True)
+    others = [ctx.Process(target=_independent_env, args=(child, env_kwargs, seed + k + 1, actions[:, k + 1]),
+                          daemon=True)
               for k, (_, child) in enumerate(pipes)]
     for process in others:
         process.start()
@@ -245,12 +254,12 @@ def vector_scaling(steps: int, seed: int, num_envs: int = 2, rounds: int = 8) ->
             envs[mode].step(batch)
         return actions.shape[0] * num_envs / (time.perf_counter() - start)
 
-    samples = {mode: [] for mode in ("one", *envs, "independent")}
+    cases = {"one": one_env, **{mode: partial(vector, mode) for mode in envs}, "independent": independent}
+    samples = {mode: [] for mode in cases}
     for _ in range(rounds):
-        samples["one"].append(one_env())
-        for mode in envs:
-            samples[mode].append(vector(mode))
-        samples["independent"].append(independent())
+        for mode, case in cases.items():
+            time.sleep(2 * SPIN_SECONDS)     # the parallel worker's polling after its last step is over
+            samples[mode].append(case())
     for parent, _ in pipes:
         parent.send(False)
     for process in others:
@@ -259,7 +268,7 @@ def vector_scaling(steps: int, seed: int, num_envs: int = 2, rounds: int = 8) ->
     for vector_env in envs.values():
         vector_env.close()
     ratios = {mode: float(np.median(np.array(samples[mode]) / samples["one"])) for mode in (*envs, "independent")}
-    return {"num_envs": num_envs, "env_kwargs": VECTOR_KWARGS, "rounds": rounds,
+    return {"num_envs": num_envs, "agent_hz": agent_hz, "env_kwargs": VECTOR_KWARGS, "rounds": rounds,
             "steps_per_s": {mode: float(np.median(rates)) for mode, rates in samples.items()},
             "ratio_to_one_env": ratios}
 
@@ -274,9 +283,9 @@ def _seconds_stepping(env, actions) -> float:
     return time.perf_counter() - start
 
 
-def _independent_env(pipe, seed: int, actions) -> None:
+def _independent_env(pipe, env_kwargs: dict, seed: int, actions) -> None:
     """A process of `vector_scaling`'s `independent` row: its own env, stepping `actions` whenever told to."""
-    env = gym.make(QUADROTOR, **VECTOR_KWARGS)
+    env = gym.make(QUADROTOR, **env_kwargs)
     env.reset(seed=seed)
     pipe.send(None)
     while pipe.recv():
@@ -314,7 +323,7 @@ def run(args, argv: list[str] | None = None) -> int:
                    pybullet_share=min(row["physics_steps_per_s"] / bare, 1.0))
         rows.append(row)
     costs = detector_step_costs(min(args.steps, 5000), args.seed)
-    vector = vector_scaling(min(args.steps, 10000), args.seed)
+    vector = [vector_scaling(min(args.steps, 10000), args.seed, agent_hz=hz) for hz in VECTOR_AGENT_HZ]
     if args.json:
         print(json.dumps({"machine": host, "env": rows, "vector": vector, "bare_pybullet_physics_steps_per_s": bare,
                           "detector_us_per_update": {name: c["update_us"] for name, c in costs.items()},
@@ -344,12 +353,14 @@ def run(args, argv: list[str] | None = None) -> int:
     for name, c in costs.items():
         verdict = "under" if c["update_us"] < DETECTOR_BUDGET_US else "OVER"
         print(f"  {name:17} {c['update_us']:8.1f} {c['step_us']:16.1f}  {verdict}")
-    rates = vector["steps_per_s"]
-    ratios = vector["ratio_to_one_env"]
-    print(f"\nvector envs: gym.make_vec({QUADROTOR!r}, num_envs={vector['num_envs']}, copy=False) with "
-          f"{VECTOR_KWARGS}, aggregate env steps/s (median of {vector['rounds']} interleaved rounds):\n"
-          f"  one env {rates['one']:.0f}, sync {rates['sync']:.0f} ({ratios['sync']:.2f}x), async "
-          f"{rates['async']:.0f} ({ratios['async']:.2f}x), parallel (vector entry point) {rates['parallel']:.0f} "
-          f"({ratios['parallel']:.2f}x); {vector['num_envs']} independent processes, one env each, no hand-over "
-          f"(the machine's ceiling) {rates['independent']:.0f} ({ratios['independent']:.2f}x)")
+    print(f"\nvector envs: gym.make_vec({QUADROTOR!r}, num_envs={vector[0]['num_envs']}, copy=False) with "
+          f"{VECTOR_KWARGS}, aggregate env steps/s (median of {vector[0]['rounds']} interleaved rounds) and against "
+          f"one env; independent: {vector[0]['num_envs']} processes, one env each, no hand-over (the machine's "
+          f"ceiling):")
+    print(f"  {'agent rate':>10} {'one env':>9} {'sync':>15} {'async':>15} {'parallel':>15} {'independent':>15}")
+    for row in vector:
+        rates, ratios = row["steps_per_s"], row["ratio_to_one_env"]
+        cells = "".join(f" {rates[mode]:8.0f} ({ratios[mode]:.2f}x)" for mode in
+                        ("sync", "async", "parallel", "independent"))
+        print(f"  {row['agent_hz']:7.0f} Hz {rates['one']:9.0f}{cells}")
     return 0
