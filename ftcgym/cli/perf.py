@@ -323,7 +323,7 @@ def run(args, argv: list[str] | None = None) -> int:
                    pybullet_share=min(row["physics_steps_per_s"] / bare, 1.0))
         rows.append(row)
     costs = detector_step_costs(min(args.steps, 5000), args.seed)
-    vector = [vector_scaling(min(args.steps, 10000), args.seed, agent_hz=hz) for hz in VECTOR_AGENT_HZ]
+    vector = [vector_scaling(args.steps, args.seed, agent_hz=hz) for hz in VECTOR_AGENT_HZ]
     if args.json:
         print(json.dumps({"machine": host, "env": rows, "vector": vector, "bare_pybullet_physics_steps_per_s": bare,
                           "detector_us_per_update": {name: c["update_us"] for name, c in costs.items()},
