@@ -17,7 +17,7 @@ import numpy as np
 from numba import njit
 from scipy.linalg import solve_continuous_are
 
-from ..models.geometry import cross3
+from ..models.geometry import cross, cross3
 from ..models.quadrotor import YAW_SIGNS, QuadrotorParams, rotational_drag_moment
 from .relaxed_hover import body_moment, rotor_roles
 
@@ -110,7 +110,7 @@ class ScheduledAxisLqr:
         forces = np.zeros(4)
         forces[self.working] = state[4:]
         rates_dot = body_moment(self.params, rates, forces, self.loaded) / self.inertia
-        n_dot = np.cross(n, rates)
+        n_dot = cross(n, rates)
         return np.concatenate([rates_dot[:2], n_dot[:2], (command - state[4:]) / self.params.motor_time_constant])
 
     def _design(self, r: float, thrust: float) -> np.ndarray:

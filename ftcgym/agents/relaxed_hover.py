@@ -25,6 +25,7 @@ import numpy as np
 from scipy.optimize import fsolve
 
 from ..models.constants import GRAVITY
+from ..models.geometry import cross
 from ..models.quadrotor import YAW_SIGNS, QuadrotorParams, make_params
 
 RESIDUAL_TOLERANCE = 1e-9   # N m and N: a root that misses by more is not an equilibrium
@@ -79,7 +80,7 @@ def body_moment(params: QuadrotorParams, rates, forces, loaded) -> np.ndarray:
     omega = np.sqrt(np.maximum(forces, 0.0) / params.thrust_coefficient)
     inertia = np.asarray(params.inertia, dtype=float)
     momentum = inertia * rates + propeller_momentum(params, omega, loaded)
-    return rotor_moment(params, forces) - np.cross(rates, momentum) + params.rotational_drag_moment(rates)
+    return rotor_moment(params, forces) - cross(rates, momentum) + params.rotational_drag_moment(rates)
 
 
 def _residual(x, params, rho, failed_rotor, weight, loaded):

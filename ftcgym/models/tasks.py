@@ -31,12 +31,21 @@ EXCITATION_PEAK = 0.25 * len(_EXCITATION_FREQS)   # m/s, bound of |excitation_sp
 
 def excitation_speed(t: float) -> float:
     """004 Sec. 5.1 speed excitation at time t (m/s)."""
-    return float(0.25 * np.sum(np.sin(_EXCITATION_FREQS * t)))
+    return _excitation(t)[1]
 
 
 def excitation_distance(t: float) -> float:
     """Integral of `excitation_speed` from 0 to t (m), in closed form."""
-    return float(0.25 * np.sum((1.0 - np.cos(_EXCITATION_FREQS * t)) / _EXCITATION_FREQS))
+    return _excitation(t)[0]
+
+
+def _excitation(t: float) -> tuple[float, float]:
+    """(`excitation_distance`, `excitation_speed`) at t, both from one product of the frequencies and time."""
+    angles = _EXCITATION_FREQS * t
+    return (float(0.25 * _sum((1.0 - np.cos(angles)) / _EXCITATION_FREQS)), float(0.25 * _sum(np.sin(angles))))
+
+
+_sum = np.add.reduce    # np.sum's reduction, without its Python-level dispatch (a microsecond a call)
 
 
 @dataclass(frozen=True)
@@ -120,6 +129,11 @@ class GotoTask:
                 "altitude": max(self.altitude, self.altitude + self.step_altitude), "speed": 0.0}
 
 
+#: per leg of the square: its direction (north, east) and its first corner in sides (north, east)
+_LEG_DIRECTIONS = ((1.0, 0.0), (0.0, 1.0), (-1.0, 0.0), (0.0, -1.0))
+_LEG_CORNERS = ((0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0))
+
+
 @dataclass(frozen=True)
 class SquareTask:
     """004 Sec. 5.1 square path after `hold` s of hover at its first corner."""
@@ -137,20 +151,25 @@ class SquareTask:
         s = self.speed * tau
         v = self.speed if t > self.hold else 0.0
         if self.excitation and t > self.hold:
-            s += excitation_distance(tau)
-            v += excitation_speed(tau)
+            distance, speed = _excitation(tau)
+            s += distance
+            v += speed
         return max(s, 0.0), v
 
     def reference(self, t: float) -> Reference:
+        """The point `_distance(t)` m along the square from its first corner, north, east, south, west (clockwise
+        seen from above), moving at the path speed along its leg. Scalar arithmetic: this runs at every agent
+        step, where numpy's 2-vectors cost more than the sums."""
         s, v = self._distance(t)
         leg, along = divmod(s, self.side)
         leg = int(leg) % 4
-        direction = np.array(((1.0, 0.0), (0.0, 1.0), (-1.0, 0.0), (0.0, -1.0))[leg])
-        corner = np.array(((0.0, 0.0), (self.side, 0.0), (self.side, self.side), (0.0, self.side))[leg])
-        north, east = corner + along * direction
+        north_step, east_step = _LEG_DIRECTIONS[leg]
+        corner_north, corner_east = _LEG_CORNERS[leg]
+        north = corner_north * self.side + along * north_step
+        east = corner_east * self.side + along * east_step
         yaw = (leg * np.pi / 2) if self.heading_changes else 0.0
         yaw = (yaw + np.pi) % (2 * np.pi) - np.pi
-        return Reference(np.array([north, east, -self.altitude]), np.array([*(v * direction), 0.0]), yaw)
+        return Reference(np.array([north, east, -self.altitude]), np.array([v * north_step, v * east_step, 0.0]), yaw)
 
     def extent(self) -> dict:
         """As `HoverTask.extent`; the excitation adds at most 1.5 m/s (the sum of its amplitudes)."""
