@@ -27,6 +27,7 @@ from .checks import FINITE, NON_NEGATIVE, POSITIVE, Range, no_unknown, number
 _EXCITATION_PAIRS = ((2.51, 3.14), (3.14, 4.19), (4.19, 6.28))
 _EXCITATION_FREQS = np.array([f for a, b in _EXCITATION_PAIRS for f in (a + b, a - b)])
 EXCITATION_PEAK = 0.25 * len(_EXCITATION_FREQS)   # m/s, bound of |excitation_speed|
+_sum = np.add.reduce    # np.sum's reduction, without its Python-level dispatch (a microsecond a call)
 
 
 def excitation_speed(t: float) -> float:
@@ -43,9 +44,6 @@ def _excitation(t: float) -> tuple[float, float]:
     """(`excitation_distance`, `excitation_speed`) at t, both from one product of the frequencies and time."""
     angles = _EXCITATION_FREQS * t
     return (float(0.25 * _sum((1.0 - np.cos(angles)) / _EXCITATION_FREQS)), float(0.25 * _sum(np.sin(angles))))
-
-
-_sum = np.add.reduce    # np.sum's reduction, without its Python-level dispatch (a microsecond a call)
 
 
 @dataclass(frozen=True)
