@@ -75,6 +75,25 @@ def test_infos_of_a_silent_worker_are_one_fresh_dict_per_env():
         envs.close()
 
 
+@pytest.mark.parametrize("copy", [True, False])
+def test_copies_are_fresh_arrays_and_views_are_the_shared_batch(copy):
+    envs = make_parallel(QUADROTOR, num_envs=2, workers=1, copy=copy, **FAST)
+    try:
+        envs.reset(seed=0)
+        hover = np.full((2, 4), 0.6, dtype=np.float32)
+        first = envs.step(hover)[0]
+        kept = {key: value.copy() for key, value in first.items()}
+        second = envs.step(hover)[0]
+        assert type(first) is type(envs.observation_space.sample()) and list(first) == list(envs.observation_space)
+        for key, value in first.items():
+            assert value.dtype == envs.observation_space[key].dtype
+            assert value.shape == (2, *envs.single_observation_space[key].shape)
+            assert np.shares_memory(value, second[key]) is not copy
+        assert np.array_equal(first["gyro"], kept["gyro"]) is copy      # a view shows the next step's readings
+    finally:
+        envs.close()
+
+
 def test_in_process_only_and_make_vec_default():
     envs = gym.make_vec(QUADROTOR, num_envs=2, workers=0, **FAST)
     try:
