@@ -6,10 +6,11 @@ step, so two async envs step slower than one env alone (docs/performance.md). He
 share of the envs itself while each worker process steps its own share, in lockstep. Actions, observations,
 rewards and flags live in shared memory, and each side waits for the other by polling a semaphore for
 `spin_seconds` before it sleeps on it: a step costs the slowest share plus a few microseconds, and a long pause
-(a policy update) does not keep a core busy. Between polls the waiting side yields its core (`os.sched_yield`),
-which costs nothing when the machine has a core to spare and, when other processes want more cores than there
-are, lets the side it waits for run: polling without yielding made the pair 5 to 100 times slower than one
-env beside one busy process on 2 cores (docs/measurements.md, 'The parallel vector env on a busy machine'). An
+(a policy update) does not keep a core busy. After its first hundred polls (3 us) the waiting side yields its
+core between polls (`os.sched_yield`), which costs nothing when the machine has a core to spare and, when other
+processes want more cores than there are, lets the side it waits for run: polling without yielding made the pair
+5 to 100 times slower than one env beside one busy process on 2 cores (docs/measurements.md, 'The parallel vector
+env on a busy machine'); where the first polls go unanswered, the next waits yield at once (`_Waiter`). An
 `info` travels through a pipe, and only when an env returned a non-empty one (`info_level="none"` sends nothing).
 
 The semantics are those of `gymnasium.vector.SyncVectorEnv`: the autoreset modes next-step (the default) and
@@ -79,6 +80,7 @@ class ParallelVectorEnv(VectorEnv):
         self.single_observation_space, self.single_action_space = first.observation_space, first.action_space
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self._box_actions = isinstance(self.single_action_space, spaces.Box)
         ctx = mp.get_context(context)
         self._shared = _Shared(ctx, self.single_observation_space, self.single_action_space, self.num_envs, workers)
         self._observations = read_from_shared_memory(self.single_observation_space, self._shared.observations,
@@ -102,8 +104,8 @@ class ParallelVectorEnv(VectorEnv):
         return obs, self._batched([(0, infos)])
 
     def step(self, actions):
-        *results, answers = self._step(actions)
-        return (*results, self._batched(answers))
+        obs, rewards, terminations, truncations, answers = self._step(actions)
+        return obs, rewards, terminations, truncations, self._batched(answers)
 
     def reset_each(self, *, seed: int | list | None = None, options: dict | None = None):
         """`reset` with the infos as a list, one dict per env (Stable-Baselines3's form)."""
@@ -117,17 +119,20 @@ class ParallelVectorEnv(VectorEnv):
 
     def step_each(self, actions):
         """`step` with the infos as a list, one dict per env (Stable-Baselines3's form)."""
-        *results, answers = self._step(actions)
-        return (*results, self._per_env([share_infos for _, share_infos in answers]))
+        obs, rewards, terminations, truncations, answers = self._step(actions)
+        return obs, rewards, terminations, truncations, self._per_env([infos for _, infos in answers])
 
     def _step(self, actions):
         """One step of every env: the batched observations, rewards and flags, and per share (start index,
-        its infos or None where a worker sent none)."""
+        its infos or None where all were empty)."""
         if self.closed:
             self._check_open("step")
         shared = self._shared
         try:
-            _copy_batch(self.single_action_space, shared.action_view, actions)
+            if self._box_actions:
+                shared.action_view[...] = actions
+            else:
+                _copy_batch(self.single_action_space, shared.action_view, actions)
         except ValueError as error:          # numpy's broadcast message, which does not say what it was copying
             raise ValueError(f"actions: expected a batch of {self.num_envs} actions of shape "
                              f"{self.single_action_space.shape} ({self.action_space.shape}); {error}") from None
@@ -197,9 +202,10 @@ class ParallelVectorEnv(VectorEnv):
         most steps have none."""
         infos = {}
         for start, share_infos in answers:
-            for k, info in enumerate(share_infos or (), start):
-                if info:
-                    infos = self._add_info(infos, info, k)
+            if share_infos:
+                for k, info in enumerate(share_infos, start):
+                    if info:
+                        infos = self._add_info(infos, info, k)
         return infos
 
     def _own_part(self, work, *args):
@@ -217,7 +223,7 @@ class ParallelVectorEnv(VectorEnv):
         answers, error = [], None
         for worker in self._workers:
             try:
-                answers.append(worker.answer(self._shared, self.spin_seconds))
+                answers.append(worker.answer())
             except RuntimeError as raised:
                 answers.append(None)
                 error = error or raised
@@ -351,9 +357,11 @@ class _Shared:
         self.observation_space, self.action_space, self.num_envs = observation_space, action_space, num_envs
         self.observations = create_shared_memory(observation_space, num_envs, ctx)
         self.actions = create_shared_memory(action_space, num_envs, ctx)
-        self._numbers = ctx.RawArray("d", num_envs)
-        self._flags = ctx.RawArray("b", 2 * num_envs)
-        self._commands = ctx.RawArray("b", 2 * max(workers, 1))   # per worker: the command, whether it answered
+        self.numbers = ctx.RawArray("d", num_envs)
+        self.flags = ctx.RawArray("b", 2 * num_envs)
+        # per worker: the command, whether it answered; these and the per-env numbers are read and written through
+        # ctypes, at a fraction of the cost of a numpy item
+        self.commands = ctx.RawArray("b", 2 * max(workers, 1))
         self.go = [ctx.Semaphore(0) for _ in range(workers)]
         self.done = [ctx.Semaphore(0) for _ in range(workers)]
         self._views()
@@ -361,27 +369,14 @@ class _Shared:
     def _views(self) -> None:
         self.action_view = read_from_shared_memory(self.action_space, self.actions, self.num_envs)
         self.observation_view = read_from_shared_memory(self.observation_space, self.observations, self.num_envs)
-        self.rewards = np.frombuffer(self._numbers, dtype=np.float64)
-        flags = np.frombuffer(self._flags, dtype=np.bool_)
+        self.rewards = np.frombuffer(self.numbers, dtype=np.float64)
+        flags = np.frombuffer(self.flags, dtype=np.bool_)
         self.terminations, self.truncations = flags[:self.num_envs], flags[self.num_envs:]
 
-    # the command slots and the per-env numbers are written through ctypes: a fraction of a numpy item write
-    def command(self, worker: int) -> int:
-        return self._commands[2 * worker]
-
-    def set_command(self, worker: int, command: int) -> None:
-        self._commands[2 * worker] = command
-
-    def answered(self, worker: int) -> bool:
-        return bool(self._commands[2 * worker + 1])
-
-    def set_answered(self, worker: int, answered: bool) -> None:
-        self._commands[2 * worker + 1] = 1 if answered else 0
-
     def write_outcome(self, k: int, reward, terminated, truncated) -> None:
-        self._numbers[k] = reward
-        self._flags[k] = 1 if terminated else 0
-        self._flags[self.num_envs + k] = 1 if truncated else 0
+        self.numbers[k] = reward
+        self.flags[k] = 1 if terminated else 0
+        self.flags[self.num_envs + k] = 1 if truncated else 0
 
     def __getstate__(self):      # to a spawned worker: the shared buffers, not the numpy views of them
         views = ("action_view", "observation_view", "rewards", "terminations", "truncations")
@@ -408,10 +403,10 @@ class _Share:
         """Per env: its action (a view into the shared batch where the space allows) and a writer of its
         observation into the shared batch."""
         self._bound = shared
-        self._actions = [_item(shared.action_space, shared.action_view, k) for k in self.indices] \
-            if isinstance(shared.action_space, spaces.Box) else None
+        box = isinstance(shared.action_space, spaces.Box)
+        actions = [_item(shared.action_space, shared.action_view, k) if box else None for k in self.indices]
         self._writers = [_writer(shared.observation_space, shared.observation_view, k) for k in self.indices]
-        self._stepping = list(zip(self.indices, self.envs, self._writers))
+        self._stepping = list(zip(self.indices, self.envs, self._writers, actions))
 
     def reset(self, seeds, options, shared: _Shared) -> list:
         infos = []
@@ -422,17 +417,20 @@ class _Share:
             infos.append(info)
         return infos
 
-    def step(self, shared: _Shared) -> list:
+    def step(self, shared: _Shared) -> list | None:
+        """Step this share's envs on the shared actions; their infos, None where every one is empty (the common
+        case, which then costs the calling process nothing to batch)."""
         if self._bound is not shared:
             self._bind(shared)
-        infos, needs_reset, same_step, write_outcome = [], self._needs_reset, self._same_step, shared.write_outcome
-        for i, (k, env, write) in enumerate(self._stepping):
+        infos, any_info, needs_reset, same_step = [], False, self._needs_reset, self._same_step
+        rewards, flags, n_envs = shared.numbers, shared.flags, shared.num_envs     # `write_outcome`, inline
+        for i, (k, env, write, action) in enumerate(self._stepping):
             if needs_reset[i]:                # next-step autoreset: this step only resets
                 obs, info = env.reset()
                 reward, terminated, truncated = 0.0, False, False
             else:
-                action = self._actions[i] if self._actions is not None else \
-                    _item(shared.action_space, shared.action_view, k)
+                if action is None:            # a Dict or Tuple action: its entry, gathered anew
+                    action = _item(shared.action_space, shared.action_view, k)
                 obs, reward, terminated, truncated, info = env.step(action)
                 if (terminated or truncated) and same_step:
                     final = {"final_obs": obs, "final_info": info}
@@ -440,9 +438,12 @@ class _Share:
                     info = {**info, **final}
             needs_reset[i] = (terminated or truncated) and not same_step
             write(obs)
-            write_outcome(k, reward, terminated, truncated)
+            rewards[k] = reward
+            flags[k] = 1 if terminated else 0
+            flags[n_envs + k] = 1 if truncated else 0
             infos.append(info)
-        return infos
+            any_info = any_info or bool(info)
+        return infos if any_info else None
 
     def _write(self, shared: _Shared, k: int, obs, reward, terminated, truncated) -> None:
         if self._bound is not shared:
@@ -476,8 +477,10 @@ class _Share:
 class _Worker:
     """The calling side of one worker process: wake it with a command, wait for its answer."""
 
-    def __init__(self, index: int, process, pipe, go, done, shared: _Shared):
+    def __init__(self, index: int, process, pipe, go, done, shared: _Shared, spin_seconds: float):
         self.index, self.process, self.pipe, self.go, self.done, self.shared = index, process, pipe, go, done, shared
+        self._commands, self._slot = shared.commands, 2 * index      # its command, then whether it answered
+        self._wait = _Waiter(done, spin_seconds, process.is_alive)
 
     @classmethod
     def start(cls, ctx, index: int, env_fns, share: range, shared: _Shared, autoreset_mode, spin_seconds):
@@ -487,22 +490,22 @@ class _Worker:
                                     spin_seconds, os.getpid()))
         process.start()
         child.close()
-        return cls(index, process, pipe, shared.go[index], shared.done[index], shared)
+        return cls(index, process, pipe, shared.go[index], shared.done[index], shared, spin_seconds)
 
     def order(self, command: int, payload=None) -> None:
-        self.shared.set_command(self.index, command)
+        self._commands[self._slot] = command
         if payload is not None:
             self.pipe.send(payload)
         self.go.release()
 
-    def answer(self, shared: _Shared, spin_seconds: float):
+    def answer(self):
         """What the worker sent (infos or results), None if nothing; raises what it raised."""
-        if not _wait(self.done, spin_seconds, self.process.is_alive):
+        if not self._wait():
             raise RuntimeError(f"ParallelVectorEnv: worker process {self.index + 1} died "
                                f"(exit code {self.process.exitcode})")
-        if not shared.answered(self.index):
+        if not self._commands[self._slot + 1]:
             return None
-        shared.set_answered(self.index, False)
+        self._commands[self._slot + 1] = 0
         kind, value = self.pipe.recv()
         if kind == "error":
             raise RuntimeError(f"ParallelVectorEnv worker {self.index + 1} raised:\n{value}")
@@ -521,31 +524,60 @@ class _Worker:
 #: gives up the core to any other runnable process (module docstring); where the OS has no sched_yield, a
 #: zero sleep does the same
 _yield = getattr(os, "sched_yield", lambda: time.sleep(0))
+#: polls of a waiting side before its first yield, about 3 us: a poll costs 0.03 us, a yield 0.5 us
+BUSY_POLLS = 100
+#: the most waits in a row that start yielding at once after the busy polls went unanswered
+MOST_RESTS = 256
 
 
-def _wait(semaphore, spin_seconds: float, alive) -> bool:
-    """Acquire `semaphore`: poll it for spin_seconds, yielding the core between polls, then sleep on it, asking
-    `alive()` every half second whether the other side is still there; False if it is gone."""
-    if semaphore.acquire(False):
+class _Waiter:
+    """Acquires one semaphore: polls it `BUSY_POLLS` times, then polls it for `spin_seconds` yielding the core
+    between polls, then sleeps on it, asking `alive()` every half second whether the other side is still there
+    (`spin_seconds=0`: one poll, then the sleep).
+
+    Where the busy polls went unanswered, the next waits yield from their first poll: one wait after the first
+    such miss, twice as many after each miss that follows (at most `MOST_RESTS`), until the busy polls are
+    answered again. On an idle machine they miss only when the other side resets or pauses; on a machine with no
+    core to spare they would keep the core from the side they wait for, and there they back off
+    (docs/measurements.md, 'The parallel vector env's hand-over, timed')."""
+
+    def __init__(self, semaphore, spin_seconds: float, alive):
+        self.semaphore, self.spin_seconds, self.alive = semaphore, spin_seconds, alive
+        self._polls, self._rests, self._backoff = BUSY_POLLS if spin_seconds > 0 else 1, 0, 1
+
+    def __call__(self) -> bool:
+        """Acquire the semaphore; False if the other side is gone."""
+        acquire = self.semaphore.acquire
+        if self._rests:
+            self._rests -= 1
+            if acquire(False):
+                return True
+        else:
+            for _ in range(self._polls):
+                if acquire(False):
+                    self._backoff = 1
+                    return True
+            self._rests, self._backoff = self._backoff, min(2 * self._backoff, MOST_RESTS)
+        deadline = time.perf_counter() + self.spin_seconds
+        while time.perf_counter() < deadline:
+            _yield()
+            if acquire(False):
+                return True
+        while not acquire(timeout=0.5):
+            if not self.alive():
+                return False
         return True
-    deadline = time.perf_counter() + spin_seconds
-    while time.perf_counter() < deadline:
-        _yield()
-        if semaphore.acquire(False):
-            return True
-    while not semaphore.acquire(timeout=0.5):
-        if not alive():
-            return False
-    return True
 
 
 def _work(index: int, env_fns, share: range, shared: _Shared, pipe, autoreset_mode, spin_seconds, parent: int):
     """A worker process: build its envs and answer, then run the calling process's commands until CLOSE."""
     go, done = shared.go[index], shared.done[index]
+    commands, slot = shared.commands, 2 * index       # its command, then whether it answered (`_Worker`)
+    wait = _Waiter(go, spin_seconds, lambda: os.getppid() == parent)
 
     def answer(kind: str, value) -> None:
         pipe.send((kind, value))
-        shared.set_answered(index, True)
+        commands[slot + 1] = 1
 
     envs = None
     try:
@@ -554,13 +586,10 @@ def _work(index: int, env_fns, share: range, shared: _Shared, pipe, autoreset_mo
         answer("error", traceback.format_exc())
     done.release()
 
-    def parent_alive() -> bool:
-        return os.getppid() == parent
-
     while envs is not None:
-        if not _wait(go, spin_seconds, parent_alive):
+        if not wait():
             break                        # the calling process is gone
-        command = shared.command(index)
+        command = commands[slot]
         if command == CLOSE:
             break
         try:
@@ -572,7 +601,7 @@ def _work(index: int, env_fns, share: range, shared: _Shared, pipe, autoreset_mo
             else:
                 answer("result", envs.call(*pipe.recv()))
                 infos = []
-            if any(infos):
+            if infos and any(infos):
                 answer("infos", infos)
         except Exception:  # noqa: BLE001 - sent to the calling process, which raises it
             answer("error", traceback.format_exc())

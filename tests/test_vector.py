@@ -184,25 +184,60 @@ def test_spawned_workers_give_the_same_results():
 
 
 class _Slow:
-    """A semaphore that is free from its fourth poll on."""
+    """A semaphore that is free from its `free_from`-th poll on (counting from one; never with None); a blocking
+    acquire gets it where `wakes` (the other side answered while this one slept)."""
 
-    def __init__(self):
-        self.polls = 0
+    def __init__(self, free_from: int | None, wakes: bool = False):
+        self.free_from, self.wakes, self.polls = free_from, wakes, 0
 
     def acquire(self, block=True, timeout=None):
         self.polls += 1
-        return self.polls > 3
+        if block:
+            return self.wakes
+        return self.free_from is not None and self.polls >= self.free_from
 
 
-def test_a_waiting_side_yields_its_core_between_polls(monkeypatch):
+@pytest.fixture
+def waiter_polls(monkeypatch):
+    """`_Waiter` with 3 busy polls and at most 4 rests, and the yields it makes, counted."""
     import ftcgym.vector as vector
     yields = []
     monkeypatch.setattr(vector, "_yield", lambda: yields.append(1))
-    semaphore = _Slow()
-    assert vector._wait(semaphore, 1.0, lambda: True)
-    assert semaphore.polls == 4 and len(yields) == 3      # one yield before each poll after the first
-    semaphore = _Slow()                                    # no polling time: the blocking acquire, no yield
-    assert vector._wait(semaphore, 0.0, lambda: True) and semaphore.polls == 4 and len(yields) == 3
+    monkeypatch.setattr(vector, "BUSY_POLLS", 3)
+    monkeypatch.setattr(vector, "MOST_RESTS", 4)
+    return vector, yields
+
+
+def test_a_waiting_side_polls_then_yields_its_core_between_polls(waiter_polls):
+    vector, yields = waiter_polls
+    semaphore = _Slow(free_from=2)
+    assert vector._Waiter(semaphore, 1.0, lambda: True)()
+    assert semaphore.polls == 2 and not yields                  # answered within the busy polls
+    semaphore = _Slow(free_from=6)
+    assert vector._Waiter(semaphore, 1.0, lambda: True)()
+    assert semaphore.polls == 6 and len(yields) == 3            # 3 busy polls, then a yield before each poll
+    semaphore = _Slow(free_from=None)                           # the other side is gone
+    assert not vector._Waiter(semaphore, 1e-4, lambda: False)()
+    assert semaphore.polls >= 5 and len(yields) == 3 + semaphore.polls - 4      # then one blocking acquire
+    semaphore, yields[:] = _Slow(free_from=None), []            # no polling time: one poll, then the sleep
+    assert not vector._Waiter(semaphore, 0.0, lambda: False)()
+    assert semaphore.polls == 2 and not yields
+
+
+def test_after_unanswered_busy_polls_a_waiting_side_yields_at_once_backing_off(waiter_polls):
+    vector, _ = waiter_polls
+    semaphore = _Slow(free_from=None, wakes=True)
+    waiter = vector._Waiter(semaphore, 1e-9, lambda: True)
+    busy = []
+    for _ in range(14):                        # every wait misses its polls: the rests double up to MOST_RESTS
+        before = semaphore.polls
+        assert waiter()
+        busy.append(semaphore.polls - before > 3)          # 3 busy polls and a sleep; a rest: 1 and a sleep
+    assert busy == [True, False, True, False, False, True, False, False, False, False, True, False, False, False]
+    semaphore.free_from = 0                    # answered at once: after the rests left, the busy polls are back
+    for _ in range(4):
+        assert waiter()
+    assert waiter._rests == 0 and waiter._backoff == 1
 
 
 @pytest.mark.parametrize("num_envs", ["2", -1, 0, 2.5, True])
