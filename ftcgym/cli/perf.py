@@ -214,8 +214,10 @@ def vector_scaling(steps: int, seed: int, num_envs: int = 2, rounds: int = 8, ag
     copy=False) and of one env, random actions, on Quadrotor-v0 with `VECTOR_KWARGS` at `agent_hz` (resets
     inside, as autoreset does them); and of `num_envs` independent processes each stepping its own env at once,
     with no hand-over (`independent`): the machine's own ceiling for any vector env. The five take turns in
-    `rounds` rounds, so a change in the machine's speed hits all alike: rates are medians over the rounds, ratios
-    medians of the ratios within a round."""
+    `rounds` rounds, so a change in the machine's speed hits all alike, in an order drawn afresh each round: in a
+    fixed order the case after Gymnasium's async vector env read up to 0.15x lower at 50 Hz (docs/measurements.md,
+    'The parallel vector env's hand-over, timed'). Rates are medians over the rounds, ratios medians of the ratios
+    within a round."""
     rng = np.random.default_rng(seed)
     chunk = max(steps // rounds // num_envs, 1)
     actions = rng.uniform(0.0, 1.0, (chunk, num_envs, 4)).astype(np.float32)
@@ -257,9 +259,9 @@ def vector_scaling(steps: int, seed: int, num_envs: int = 2, rounds: int = 8, ag
     cases = {"one": one_env, **{mode: partial(vector, mode) for mode in envs}, "independent": independent}
     samples = {mode: [] for mode in cases}
     for _ in range(rounds):
-        for mode, case in cases.items():
+        for mode in rng.permutation(list(cases)):     # a fresh order each round: no case always follows another
             time.sleep(2 * SPIN_SECONDS)     # the parallel worker's polling after its last step is over
-            samples[mode].append(case())
+            samples[str(mode)].append(cases[mode]())
     for parent, _ in pipes:
         parent.send(False)
     for process in others:
