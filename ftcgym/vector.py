@@ -80,7 +80,6 @@ class ParallelVectorEnv(VectorEnv):
         self.single_observation_space, self.single_action_space = first.observation_space, first.action_space
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
-        self._box_actions = isinstance(self.single_action_space, spaces.Box)
         ctx = mp.get_context(context)
         self._shared = _Shared(ctx, self.single_observation_space, self.single_action_space, self.num_envs, workers)
         self._observations = read_from_shared_memory(self.single_observation_space, self._shared.observations,
@@ -129,10 +128,7 @@ class ParallelVectorEnv(VectorEnv):
             self._check_open("step")
         shared = self._shared
         try:
-            if self._box_actions:
-                shared.action_view[...] = actions
-            else:
-                _copy_batch(self.single_action_space, shared.action_view, actions)
+            _copy_batch(self.single_action_space, shared.action_view, actions)
         except ValueError as error:          # numpy's broadcast message, which does not say what it was copying
             raise ValueError(f"actions: expected a batch of {self.num_envs} actions of shape "
                              f"{self.single_action_space.shape} ({self.action_space.shape}); {error}") from None
@@ -478,7 +474,7 @@ class _Worker:
     """The calling side of one worker process: wake it with a command, wait for its answer."""
 
     def __init__(self, index: int, process, pipe, go, done, shared: _Shared, spin_seconds: float):
-        self.index, self.process, self.pipe, self.go, self.done, self.shared = index, process, pipe, go, done, shared
+        self.index, self.process, self.pipe, self.go = index, process, pipe, go
         self._commands, self._slot = shared.commands, 2 * index      # its command, then whether it answered
         self._wait = _Waiter(done, spin_seconds, process.is_alive)
 

@@ -259,9 +259,9 @@ def vector_scaling(steps: int, seed: int, num_envs: int = 2, rounds: int = 8, ag
     cases = {"one": one_env, **{mode: partial(vector, mode) for mode in envs}, "independent": independent}
     samples = {mode: [] for mode in cases}
     for _ in range(rounds):
-        for mode in rng.permutation(list(cases)):     # a fresh order each round: no case always follows another
+        for mode in rng.permutation(list(cases)).tolist():   # a fresh order each round: none always follows another
             time.sleep(2 * SPIN_SECONDS)     # the parallel worker's polling after its last step is over
-            samples[str(mode)].append(cases[mode]())
+            samples[mode].append(cases[mode]())
     for parent, _ in pipes:
         parent.send(False)
     for process in others:
